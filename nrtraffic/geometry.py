@@ -1,0 +1,148 @@
+"""Lane paths built from SUMO lane shapes (polylines).
+
+A :class:`LanePath` maps arc length ``s`` [m] along a vehicle's path to position ``(x, y)`` [m] and
+heading [rad, counter-clockwise from +x], and projects a point back to ``(s, signed lateral offset)``
+(positive to the left of the direction of travel). Pure numpy; the compiled kernels use the packed
+arrays through :func:`path_xy`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+
+@dataclass(frozen=True)
+class LanePath:
+    """A polyline path with cumulative arc length.
+
+    Attributes
+    ----------
+    xy : (n, 2) vertices [m].
+    s : (n,) cumulative arc length at the vertices [m], ``s[0] = 0``.
+    """
+
+    xy: np.ndarray
+    s: np.ndarray
+
+    @classmethod
+    def from_points(cls, points, min_spacing: float = 1e-6) -> "LanePath":
+        """Build from vertices, dropping consecutive duplicates (closer than ``min_spacing`` m)."""
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        keep = [0]
+        for i in range(1, len(pts)):
+            if np.hypot(*(pts[i] - pts[keep[-1]])) > min_spacing:
+                keep.append(i)
+        pts = pts[keep]
+        if len(pts) < 2:
+            raise ValueError("a lane path needs at least two distinct points")
+        seg = np.hypot(*np.diff(pts, axis=0).T)
+        s = np.concatenate([[0.0], np.cumsum(seg)])
+        pts.setflags(write=False)
+        s.setflags(write=False)
+        return cls(pts, s)
+
+    @property
+    def length(self) -> float:
+        """Total arc length [m]."""
+        return float(self.s[-1])
+
+    def _segment(self, s):
+        s = np.asarray(s, dtype=np.float64)
+        i = np.clip(np.searchsorted(self.s, s, side="right") - 1, 0, len(self.s) - 2)
+        return s, i
+
+    def xy_at(self, s) -> np.ndarray:
+        """Position at arc length ``s`` (scalar or array) [m]; linear extrapolation past the ends."""
+        s, i = self._segment(s)
+        d = self.xy[i + 1] - self.xy[i]
+        seg = self.s[i + 1] - self.s[i]
+        frac = (s - self.s[i]) / seg
+        return self.xy[i] + frac[..., None] * d
+
+    def heading_at(self, s) -> np.ndarray:
+        """Heading of the segment containing ``s`` [rad]."""
+        _, i = self._segment(s)
+        d = self.xy[i + 1] - self.xy[i]
+        return np.arctan2(d[..., 1], d[..., 0])
+
+    def project(self, point) -> tuple[float, float]:
+        """Closest point on the path: returns ``(s, lateral)`` [m], lateral positive to the left.
+
+        Beyond the ends the first/last segment is extended, so ``s`` may be negative or exceed
+        :attr:`length`.
+        """
+        q = np.asarray(point, dtype=np.float64)
+        a = self.xy[:-1]
+        d = self.xy[1:] - a
+        seg2 = np.einsum("ij,ij->i", d, d)
+        t = np.einsum("ij,ij->i", q - a, d) / seg2
+        t_in = np.clip(t, 0.0, 1.0)
+        # allow extrapolation on the first and last segment only
+        t_in[0] = min(t[0], 1.0)
+        t_in[-1] = max(t[-1], 0.0)
+        foot = a + t_in[:, None] * d
+        dist2 = np.einsum("ij,ij->i", q - foot, q - foot)
+        k = int(np.argmin(dist2))
+        seg = np.sqrt(seg2[k])
+        s = self.s[k] + t_in[k] * seg
+        cross = d[k, 0] * (q[1] - a[k, 1]) - d[k, 1] * (q[0] - a[k, 0])
+        return float(s), float(cross / seg)
+
+
+@njit(cache=True)
+def path_xy(s_arr, xy, s, out):
+    """Compiled :meth:`LanePath.xy_at` for one packed path: positions at each ``s_arr[j]``."""
+    n = s.shape[0]
+    for j in range(s_arr.shape[0]):
+        q = s_arr[j]
+        lo = 0
+        hi = n - 2
+        # binary search for the segment i with s[i] <= q < s[i+1]
+        while lo < hi:
+            mid = (lo + hi + 1) // 2
+            if s[mid] <= q:
+                lo = mid
+            else:
+                hi = mid - 1
+        i = lo
+        frac = (q - s[i]) / (s[i + 1] - s[i])
+        out[j, 0] = xy[i, 0] + frac * (xy[i + 1, 0] - xy[i, 0])
+        out[j, 1] = xy[i, 1] + frac * (xy[i + 1, 1] - xy[i, 1])
+
+
+@njit(cache=True)
+def project_local(xy, s, qx, qy, hint, back, ahead):
+    """Compiled projection of ``(qx, qy)`` onto the segments ``hint-back .. hint+ahead`` of a packed
+    path; returns ``(s, lateral, segment)`` (lateral positive to the left)."""
+    n = s.shape[0] - 1
+    lo = max(hint - back, 0)
+    hi = min(hint + ahead, n - 1)
+    best = 1e300
+    best_s = 0.0
+    best_lat = 0.0
+    best_i = lo
+    for i in range(lo, hi + 1):
+        ax = xy[i, 0]
+        ay = xy[i, 1]
+        dx = xy[i + 1, 0] - ax
+        dy = xy[i + 1, 1] - ay
+        seg2 = dx * dx + dy * dy
+        t = ((qx - ax) * dx + (qy - ay) * dy) / seg2
+        if i > 0 and t < 0.0:
+            t = 0.0
+        if i < n - 1 and t > 1.0:
+            t = 1.0
+        fx = ax + t * dx
+        fy = ay + t * dy
+        d2 = (qx - fx) ** 2 + (qy - fy) ** 2
+        if d2 < best:
+            best = d2
+            seg = math.sqrt(seg2)
+            best_s = s[i] + t * seg
+            best_lat = (dx * (qy - ay) - dy * (qx - ax)) / seg
+            best_i = i
+    return best_s, best_lat, best_i

@@ -1,0 +1,47 @@
+"""Per-vehicle and per-run figures.
+
+Fuel: Kamal et al.'s polynomial as used by this line of work (REFERENCE.md section 3), in mL/s with
+``v`` [m/s] and ``u`` [m/s^2]; the acceleration term counts only for ``u > 0``.
+Energy: ``1/2 int u^2 dt`` of the applied longitudinal acceleration [m^2/s^3].
+Delay: time lost against free flow at the entry speed,
+``(t_exit - t_enter) - (s_exit - s_enter) / v_enter`` [s].
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def fuel_rate(v, u):
+    """Fuel consumption rate [mL/s] at speed ``v`` [m/s] and acceleration ``u`` [m/s^2]."""
+    f = 0.1569 + 2.450e-2 * v - 7.415e-4 * v * v + 5.975e-5 * v * v * v
+    if u > 0.0:
+        f += u * (0.07224 + 9.681e-2 * v + 1.075e-3 * v * v)
+    return f
+
+
+def free_flow_delay(t_enter, t_exit, distance_m, v_enter):
+    """Delay [s] against crossing ``distance_m`` at the entry speed."""
+    return (np.asarray(t_exit) - np.asarray(t_enter)) - np.asarray(distance_m) / np.asarray(v_enter)
+
+
+def percentile_or_none(values, q):
+    vals = np.asarray([v for v in values if v is not None and np.isfinite(v)], dtype=float)
+    return float(np.percentile(vals, q)) if vals.size else None
+
+
+def mean_or_none(values):
+    vals = np.asarray([v for v in values if v is not None and np.isfinite(v)], dtype=float)
+    return float(vals.mean()) if vals.size else None
+
+
+def max_or_none(values):
+    vals = np.asarray([v for v in values if v is not None and np.isfinite(v)], dtype=float)
+    return float(vals.max()) if vals.size else None
+
+
+def min_or_none(values):
+    vals = np.asarray([v for v in values if v is not None and np.isfinite(v)], dtype=float)
+    return float(vals.min()) if vals.size else None

@@ -1,0 +1,109 @@
+"""Merge-time assignment, first-in-first-out by arrival at the control zone (REFERENCE.md s. 3).
+
+For vehicle ``i`` arriving at ``t0`` with speed ``v0``, ``D`` metres before the merging zone::
+
+    t_m(i) = max( t0 + T_earliest(i),
+                  t_m(j) + max(h_min, delta / v_m(j))   for the last vehicle j on i's lane )
+
+``T_earliest`` is ``D / v0`` (cruise at the entry speed, as Malikopoulos et al. 2018 and the paper:
+an unhindered vehicle keeps its speed) or the bound-limited minimum time, whichever is longer;
+``delta`` is the rear-end spacing [m] and ``h_min`` a minimum merge headway [s]. The energy-optimal
+free-terminal profile for ``T = t_m - t0`` is then computed in closed form.
+
+This module handles one lane; conflicting movements add the ``t_exit(j)`` term of REFERENCE.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from nrtraffic.planning.profiles import InfeasibleProfile, PlanBounds, Profile, free_terminal, max_time, min_time
+
+
+class ScheduleInfeasible(InfeasibleProfile):
+    """The merge time a vehicle must respect cannot be met within the planning bounds."""
+
+
+@dataclass(frozen=True)
+class CoordinatorSettings:
+    """Coordinator settings.
+
+    Attributes
+    ----------
+    rear_end_spacing_m : ``delta``, spacing between consecutive vehicles of a lane at the merging
+        zone entry [m] (centre to centre).
+    min_merge_headway_s : ``h_min``, minimum time between consecutive merge times of a lane [s].
+    earliest : ``"entry_speed"`` (arrive no earlier than cruising at the entry speed) or
+        ``"max_speed"`` (arrive as early as the bounds allow).
+    """
+
+    rear_end_spacing_m: float = 10.0
+    min_merge_headway_s: float = 0.0
+    earliest: str = "entry_speed"
+
+    def __post_init__(self) -> None:
+        if self.rear_end_spacing_m < 0 or self.min_merge_headway_s < 0:
+            raise ValueError("coordinator spacing and headway must be >= 0")
+        if self.earliest not in ("entry_speed", "max_speed"):
+            raise ValueError(f"coordinator.earliest must be 'entry_speed' or 'max_speed', got {self.earliest!r}")
+
+
+@dataclass(frozen=True)
+class Assignment:
+    """What the coordinator decided for one vehicle."""
+
+    vehicle_id: str
+    lane: str
+    t_enter: float
+    t_merge: float
+    profile: Profile
+    predecessor: str | None
+    relation: str  # "none" or "same_lane"
+    binding: str  # which term set t_merge: "earliest" or "rear_end"
+
+
+@dataclass
+class Coordinator:
+    """FIFO merge-time scheduler; call :meth:`schedule` in arrival order."""
+
+    settings: CoordinatorSettings
+    bounds: PlanBounds
+    _last_on_lane: dict[str, Assignment] = field(default_factory=dict)
+
+    def schedule(self, vehicle_id: str, lane: str, t0: float, v0: float, D: float) -> Assignment:
+        """Assign a merge time and profile to a vehicle that entered the control zone.
+
+        Parameters
+        ----------
+        lane : key of the lane (vehicles with the same key are rear-end constrained).
+        t0 : entry time [s]; v0 : entry speed [m/s]; D : distance to the merging zone [m].
+
+        Raises
+        ------
+        ScheduleInfeasible : the required merge time is later than the bounds allow.
+        """
+        b = self.bounds
+        t_min = min_time(v0, D, b)
+        if self.settings.earliest == "entry_speed" and v0 > 0.0:
+            t_min = max(t_min, D / min(v0, b.v_max_mps))
+        t_m, binding, pred = t0 + t_min, "earliest", None
+        prev = self._last_on_lane.get(lane)
+        if prev is not None:
+            pred = prev.vehicle_id
+            gap = max(self.settings.min_merge_headway_s, self.settings.rear_end_spacing_m / prev.profile.v_m)
+            if prev.t_merge + gap > t_m:
+                t_m, binding = prev.t_merge + gap, "rear_end"
+        T = t_m - t0
+        t_max = max_time(v0, D, b)
+        if T > t_max + 1e-9:
+            raise ScheduleInfeasible(
+                f"vehicle {vehicle_id}: merge time {t_m:.2f} s needs {T:.2f} s for {D:.1f} m, "
+                f"but at v >= {b.v_min_mps} m/s it arrives by {t_max:.2f} s"
+            )
+        try:
+            prof = free_terminal(t0, v0, D, T, b)
+        except InfeasibleProfile as exc:
+            raise ScheduleInfeasible(f"vehicle {vehicle_id}: {exc}") from None
+        a = Assignment(vehicle_id, lane, t0, t_m, prof, pred, "same_lane" if pred else "none", binding)
+        self._last_on_lane[lane] = a
+        return a

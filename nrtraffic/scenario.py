@@ -1,0 +1,370 @@
+"""Scenario files (TOML) -> validated, frozen configuration objects.
+
+A scenario file has the sections below (every key optional unless marked); unknown sections and
+keys are errors naming the key, and so are values of the wrong type or out of range.
+See ``sumo_scenarios/paper_curved/scenario.toml`` for a commented example.
+
+Units are in the key names: ``_s`` seconds, ``_m`` metres, ``_mps`` m/s, ``_mps2`` m/s^2,
+``_rad`` radians.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, get_type_hints
+
+from nrtraffic.planning.coordinator import CoordinatorSettings
+from nrtraffic.planning.profiles import PlanBounds
+from nrtraffic.vehicle.params import BicycleParams, preset
+
+
+class ScenarioError(ValueError):
+    """A scenario file is malformed, names an unknown key, or has an invalid value."""
+
+
+@dataclass(frozen=True)
+class General:
+    """``[scenario]``: name, network and run length."""
+
+    name: str = "unnamed"
+    description: str = ""
+    network: str = ""  # path of the .net.xml, relative to the scenario file (required)
+    seed: int = 1
+    duration_s: float = 0.0  # simulated time; 0 runs until every vehicle has left
+
+    def validate(self) -> None:
+        if not self.network:
+            raise ScenarioError("scenario.network is required (path of the SUMO .net.xml)")
+        if self.duration_s < 0:
+            raise ScenarioError("scenario.duration_s must be >= 0")
+
+
+@dataclass(frozen=True)
+class Sumo:
+    """``[sumo]``: SUMO's own settings."""
+
+    step_length_s: float = 0.1
+    lateral_resolution_m: float = 0.25  # sublane model: needed for exact moveToXY placement
+    extra_args: tuple[str, ...] = ()
+
+    def validate(self) -> None:
+        if not (0 < self.step_length_s <= 1.0):
+            raise ScenarioError("sumo.step_length_s must be in (0, 1]")
+        if self.lateral_resolution_m <= 0:
+            raise ScenarioError("sumo.lateral_resolution_m must be > 0 (moveToXY needs the sublane model)")
+
+
+@dataclass(frozen=True)
+class Controller:
+    """``[controller]``: plant integration, predictor and Newton-Raphson flow (paper s. 3.1, 4.1)."""
+
+    plant_step_s: float = 0.005  # forward-Euler step of the plant (paper dt)
+    predictor_step_s: float = 0.001  # forward-Euler step of the predictor (paper Delta t)
+    horizon_s: float = 0.2  # prediction horizon T (not given by the paper; see README)
+    alpha: float = 100.0  # speed-up of the update law, eq. (12)
+    damping: float = 1e-6  # relative damping of the regularised inverse
+    predictor_mass_factor: float = 1.0  # predictor mass / plant mass (paper's robustness test: 2)
+    a_min_mps2: float = -6.0  # input bounds of the tracker
+    a_max_mps2: float = 3.0
+    steer_max_rad: float = math.pi / 4
+
+    def validate(self) -> None:
+        for k in ("plant_step_s", "predictor_step_s", "horizon_s", "alpha", "predictor_mass_factor", "steer_max_rad"):
+            if getattr(self, k) <= 0:
+                raise ScenarioError(f"controller.{k} must be > 0")
+        if self.horizon_s < self.predictor_step_s:
+            raise ScenarioError("controller.horizon_s must be at least controller.predictor_step_s")
+        if not (self.a_min_mps2 < 0 < self.a_max_mps2):
+            raise ScenarioError("controller needs a_min_mps2 < 0 < a_max_mps2")
+        if self.damping < 0:
+            raise ScenarioError("controller.damping must be >= 0")
+
+
+@dataclass(frozen=True)
+class Vehicle:
+    """``[vehicle]``: a parameter preset and optional overrides of its fields."""
+
+    preset: str = "paper"
+    overrides: dict = field(default_factory=dict)
+
+    def params(self) -> BicycleParams:
+        base = preset(self.preset)
+        names = {f.name for f in dataclasses.fields(BicycleParams)}
+        for k in self.overrides:
+            if k not in names:
+                raise ScenarioError(f"vehicle.{k} is not a vehicle parameter; known: {', '.join(sorted(names))}")
+        try:
+            return dataclasses.replace(base, **{k: float(v) for k, v in self.overrides.items()})
+        except (TypeError, ValueError) as exc:
+            raise ScenarioError(f"vehicle: {exc}") from None
+
+    def validate(self) -> None:
+        try:
+            self.params()
+        except ValueError as exc:
+            raise ScenarioError(str(exc)) from None
+
+
+@dataclass(frozen=True)
+class Zones:
+    """``[zones]``: lengths along each approach's path [m]."""
+
+    control_zone_m: float = 400.0
+    merging_zone_m: float = 30.0
+
+    def validate(self) -> None:
+        if self.control_zone_m <= 0 or self.merging_zone_m <= 0:
+            raise ScenarioError("zones.control_zone_m and zones.merging_zone_m must be > 0")
+
+
+@dataclass(frozen=True)
+class Approach:
+    """``[[approaches]]``: one controlled path into the merging zone."""
+
+    name: str = ""
+    route: tuple[str, ...] = ()  # SUMO edge ids from insertion to the end of the network
+    merge_entry_edge: str = ""  # edge holding the merging-zone entry
+    merge_entry_pos_m: float = 0.0  # its lane position on that edge [m]
+
+    def validate(self) -> None:
+        if not self.name:
+            raise ScenarioError("every [[approaches]] entry needs a name")
+        if len(self.route) < 1:
+            raise ScenarioError(f"approaches.{self.name}.route must list at least one edge")
+        if self.merge_entry_edge not in self.route:
+            raise ScenarioError(f"approaches.{self.name}.merge_entry_edge {self.merge_entry_edge!r} is not on its route")
+        if self.merge_entry_pos_m < 0:
+            raise ScenarioError(f"approaches.{self.name}.merge_entry_pos_m must be >= 0")
+
+
+@dataclass(frozen=True)
+class Demand:
+    """``[demand]``: arrivals per approach, drawn from the run's seed.
+
+    Headways are shifted exponential (a Poisson stream thinned by a minimum headway):
+    ``h = min_headway_s + Exp(mean_headway_s - min_headway_s)``.
+    """
+
+    entry_speed_mps: float = 13.4
+    mean_headway_s: float = 6.0
+    min_headway_s: float = 1.5
+    max_vehicles: int = 0  # per approach; 0 = no limit
+    begin_s: float = 0.0
+    end_s: float = 0.0  # last departure time; 0 = scenario.duration_s
+
+    def validate(self) -> None:
+        if self.entry_speed_mps <= 0:
+            raise ScenarioError("demand.entry_speed_mps must be > 0")
+        if not (0 <= self.min_headway_s < self.mean_headway_s):
+            raise ScenarioError("demand needs 0 <= min_headway_s < mean_headway_s")
+        if self.max_vehicles < 0:
+            raise ScenarioError("demand.max_vehicles must be >= 0")
+
+
+@dataclass(frozen=True)
+class Outputs:
+    """``[outputs]``: what the run directory holds."""
+
+    trajectory_interval_s: float = 0.1  # log interval of trajectories.parquet (multiple of the SUMO step)
+    sumo_tripinfo: bool = True
+    sumo_collisions: bool = True
+
+    def validate(self) -> None:
+        if self.trajectory_interval_s <= 0:
+            raise ScenarioError("outputs.trajectory_interval_s must be > 0")
+
+
+_SECTIONS: dict[str, type] = {
+    "scenario": General,
+    "sumo": Sumo,
+    "controller": Controller,
+    "vehicle": Vehicle,
+    "zones": Zones,
+    "planning": PlanBounds,
+    "coordinator": CoordinatorSettings,
+    "demand": Demand,
+    "outputs": Outputs,
+}
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A validated scenario. ``base_dir`` resolves the relative paths in it."""
+
+    general: General
+    sumo: Sumo
+    controller: Controller
+    vehicle: Vehicle
+    zones: Zones
+    planning: PlanBounds
+    coordinator: CoordinatorSettings
+    demand: Demand
+    outputs: Outputs
+    approaches: tuple[Approach, ...]
+    base_dir: Path
+
+    @property
+    def network_path(self) -> Path:
+        return (self.base_dir / self.general.network).resolve()
+
+    def to_dict(self) -> dict[str, Any]:
+        """The full configuration as a TOML-ready dict (every default made explicit)."""
+        out: dict[str, Any] = {}
+        for key, cls in _SECTIONS.items():
+            obj = getattr(self, _ATTR[key])
+            d = {}
+            for f in dataclasses.fields(obj):
+                v = getattr(obj, f.name)
+                if key == "vehicle" and f.name == "overrides":
+                    d.update({k: float(x) for k, x in v.items()})
+                    continue
+                d[f.name] = list(v) if isinstance(v, tuple) else v
+            out[key] = d
+        out["approaches"] = [
+            {f.name: (list(getattr(a, f.name)) if isinstance(getattr(a, f.name), tuple) else getattr(a, f.name))
+             for f in dataclasses.fields(a)}
+            for a in self.approaches
+        ]
+        return out
+
+
+_ATTR = {"scenario": "general", "planning": "planning", "coordinator": "coordinator"}
+for _k in _SECTIONS:
+    _ATTR.setdefault(_k, _k)
+
+
+def _coerce(section: str, key: str, typ, value):
+    where = f"{section}.{key}"
+    origin = getattr(typ, "__origin__", None)
+    if typ is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ScenarioError(f"{where} must be a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ScenarioError(f"{where} must be finite, got {value!r}")
+        return float(value)
+    if typ is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ScenarioError(f"{where} must be an integer, got {value!r}")
+        return value
+    if typ is bool:
+        if not isinstance(value, bool):
+            raise ScenarioError(f"{where} must be true or false, got {value!r}")
+        return value
+    if typ is str:
+        if not isinstance(value, str):
+            raise ScenarioError(f"{where} must be a string, got {value!r}")
+        return value
+    if origin is tuple:
+        if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+            raise ScenarioError(f"{where} must be a list of strings, got {value!r}")
+        return tuple(value)
+    raise ScenarioError(f"{where}: unsupported type")  # pragma: no cover
+
+
+def _section(name: str, cls, table) -> Any:
+    if not isinstance(table, dict):
+        raise ScenarioError(f"[{name}] must be a table")
+    hints = get_type_hints(cls)
+    known = {f.name for f in dataclasses.fields(cls)}
+    kwargs: dict[str, Any] = {}
+    if cls is Vehicle:
+        extra = {k: v for k, v in table.items() if k != "preset"}
+        for k, v in extra.items():
+            _coerce(name, k, float, v)
+        kwargs["overrides"] = extra
+        if "preset" in table:
+            kwargs["preset"] = _coerce(name, "preset", str, table["preset"])
+    else:
+        for k, v in table.items():
+            if k not in known:
+                raise ScenarioError(f"unknown key {name}.{k}; known keys of [{name}]: {', '.join(sorted(known))}")
+            kwargs[k] = _coerce(name, k, hints[k], v)
+    try:
+        obj = cls(**kwargs)
+    except (ValueError, TypeError) as exc:
+        raise ScenarioError(f"[{name}]: {exc}") from None
+    if hasattr(obj, "validate"):
+        obj.validate()
+    return obj
+
+
+def parse_override(text: str) -> tuple[str, str, Any]:
+    """``'section.key=value'`` -> (section, key, value); the value is read as TOML, else a string."""
+    if "=" not in text or "." not in text.split("=", 1)[0]:
+        raise ScenarioError(f"--set expects section.key=value, got {text!r}")
+    lhs, rhs = text.split("=", 1)
+    section, key = lhs.strip().split(".", 1)
+    try:
+        value = tomllib.loads(f"v = {rhs.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = rhs.strip()
+    return section, key, value
+
+
+def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...] = ()) -> Scenario:
+    """Validate a parsed scenario table (plus ``section.key=value`` overrides)."""
+    data = {k: (dict(v) if isinstance(v, dict) else v) for k, v in data.items()}
+    for ov in overrides:
+        section, key, value = parse_override(ov)
+        if section not in _SECTIONS:
+            raise ScenarioError(f"--set {ov!r}: unknown section {section!r}")
+        data.setdefault(section, {})[key] = value
+    unknown = set(data) - set(_SECTIONS) - {"approaches"}
+    if unknown:
+        raise ScenarioError(
+            f"unknown section(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(list(_SECTIONS) + ['approaches']))}"
+        )
+    parts = {_ATTR[k]: _section(k, cls, data.get(k, {})) for k, cls in _SECTIONS.items()}
+    appr = data.get("approaches", [])
+    if not isinstance(appr, list) or not appr:
+        raise ScenarioError("at least one [[approaches]] entry is required")
+    approaches = tuple(_section("approaches", Approach, a) for a in appr)
+    names = [a.name for a in approaches]
+    if len(set(names)) != len(names):
+        raise ScenarioError(f"approach names must be unique, got {names}")
+    sc = Scenario(approaches=approaches, base_dir=Path(base_dir).resolve(), **parts)
+    if not sc.network_path.is_file():
+        raise ScenarioError(f"network file not found: {sc.network_path} (scenario.network = {sc.general.network!r})")
+    if sc.controller.plant_step_s > sc.sumo.step_length_s:
+        raise ScenarioError("controller.plant_step_s must not exceed sumo.step_length_s")
+    ratio = sc.sumo.step_length_s / sc.controller.plant_step_s
+    if abs(ratio - round(ratio)) > 1e-9:
+        raise ScenarioError("sumo.step_length_s must be a whole multiple of controller.plant_step_s")
+    return sc
+
+
+def load(path: str | Path, overrides: list[str] | tuple[str, ...] = ()) -> Scenario:
+    """Read and validate a scenario file.
+
+    Raises
+    ------
+    ScenarioError : with a message naming the file and the offending key.
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / "scenario.toml"
+    if not path.is_file():
+        raise ScenarioError(f"scenario file not found: {path}")
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
+    try:
+        return from_dict(data, path.parent, overrides)
+    except ScenarioError as exc:
+        raise ScenarioError(f"{path}: {exc}") from None
+
+
+def dump(sc: Scenario, path: Path, network: str | None = None) -> None:
+    """Write the resolved configuration (``scenario.resolved.toml``); ``network`` replaces the
+    network path (a copy placed beside the file)."""
+    import tomli_w
+
+    d = sc.to_dict()
+    if network is not None:
+        d["scenario"]["network"] = network
+    path.write_text(tomli_w.dumps(d))

@@ -1,0 +1,246 @@
+"""The only place that talks to SUMO at run time (libsumo, in-process).
+
+One simulation per process (a libsumo limitation): a :class:`SumoSession` is a context manager and
+refuses to start while another session of the process is open.
+
+Poses are pushed with ``moveToXY(keepRoute=1)`` under the sublane model, which places the front
+bumper exactly (REFERENCE.md section 5); the true speed is set beside it (``setSpeedMode 0`` +
+``setSpeed``), so that SUMO's timeLoss, emissions and followers see the real speed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+_ACTIVE = None
+DEFAULT_SPEED_MODE = 31  # SUMO's default: all safety checks on
+
+
+class SumoError(RuntimeError):
+    """SUMO refused a command or failed during a run."""
+
+
+def _libsumo():
+    try:
+        import libsumo
+    except ImportError as exc:  # pragma: no cover - dependency missing
+        raise SumoError("libsumo is not installed (pip install libsumo)") from exc
+    return libsumo
+
+
+def sumo_version() -> str:
+    """Version string of the SUMO wheel."""
+    try:
+        from importlib.metadata import version
+
+        return version("eclipse-sumo")
+    except Exception:  # pragma: no cover
+        return "unknown"
+
+
+def nav_angle(psi: float) -> float:
+    """Heading [rad, counter-clockwise from +x] -> SUMO navigation angle [deg, 0 = north, clockwise]."""
+    return (90.0 - math.degrees(psi)) % 360.0
+
+
+def heading_from_nav(angle_deg: float) -> float:
+    """SUMO navigation angle [deg] -> heading [rad, counter-clockwise from +x], in (-pi, pi]."""
+    return math.atan2(math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg)))
+
+
+@dataclass(frozen=True)
+class VehicleType:
+    """The SUMO vehicle type of the controlled vehicles (geometry and SUMO's own driving)."""
+
+    id: str = "auto"
+    length_m: float = 4.8
+    width_m: float = 1.9
+    min_gap_m: float = 2.5
+    accel_mps2: float = 2.6
+    decel_mps2: float = 4.5
+    max_speed_mps: float = 20.0
+
+
+def write_routes(path: Path, vtype: VehicleType, routes: dict[str, tuple[str, ...]], vehicles) -> None:
+    """Write a SUMO route file.
+
+    ``vehicles``: iterable of ``(vehicle_id, route_name, depart_s, depart_speed_mps)`` sorted by
+    departure. Speeds are deterministic (``speedFactor=1``, ``sigma=0``); randomness comes from the
+    arrival times only.
+    """
+    lines = ["<routes>"]
+    lines.append(
+        f'    <vType id="{vtype.id}" length="{vtype.length_m}" width="{vtype.width_m}" minGap="{vtype.min_gap_m}" '
+        f'accel="{vtype.accel_mps2}" decel="{vtype.decel_mps2}" maxSpeed="{vtype.max_speed_mps}" '
+        'speedFactor="1" speedDev="0" sigma="0"/>'
+    )
+    for name, edges in routes.items():
+        lines.append(f'    <route id="{name}" edges="{" ".join(edges)}"/>')
+    for vid, route, depart, speed in vehicles:
+        lines.append(
+            f'    <vehicle id="{vid}" type="{vtype.id}" route="{route}" depart="{depart:.2f}" '
+            f'departSpeed="{speed:.3f}" departPos="base" departLane="0"/>'
+        )
+    lines.append("</routes>")
+    path.write_text("\n".join(lines) + "\n")
+
+
+class SumoSession:
+    """A running SUMO simulation.
+
+    Parameters
+    ----------
+    net, routes : SUMO inputs.
+    step_length_s : SUMO step [s].
+    seed : SUMO's ``--seed``.
+    lateral_resolution_m : sublane width [m].
+    tripinfo, collisions : output files (None: not written). A name ending in .csv or .parquet
+        selects that format (SUMO's own writers).
+    """
+
+    def __init__(self, net: Path, routes: Path, step_length_s: float, seed: int, lateral_resolution_m: float = 0.25,
+                 tripinfo: Path | None = None, collisions: Path | None = None, extra_args: tuple[str, ...] = ()):
+        self.args = [
+            "sumo",
+            "--net-file", str(net),
+            "--route-files", str(routes),
+            "--step-length", repr(float(step_length_s)),
+            "--seed", str(int(seed)),
+            "--lateral-resolution", repr(float(lateral_resolution_m)),
+            "--collision.action", "warn",
+            "--collision.check-junctions", "true",
+            "--collision.mingap-factor", "0",
+            "--no-step-log", "true",
+            "--no-warnings", "true",
+            "--duration-log.disable", "true",
+            "--time-to-teleport", "-1",
+        ]
+        if tripinfo is not None:
+            self.args += ["--tripinfo-output", str(tripinfo), "--device.emissions.probability", "1"]
+        if collisions is not None:
+            self.args += ["--collision-output", str(collisions)]
+        self.args += list(extra_args)
+        self.step_length = float(step_length_s)
+        self.traci = None
+
+    # ---- life cycle
+    def start(self) -> "SumoSession":
+        global _ACTIVE
+        if _ACTIVE is not None:
+            raise SumoError("a SUMO simulation is already running in this process (libsumo allows one)")
+        t = _libsumo()
+        try:
+            t.start(self.args)
+        except Exception as exc:
+            raise SumoError(f"SUMO failed to start: {exc}") from None
+        self.traci = t
+        _ACTIVE = self
+        return self
+
+    def close(self) -> None:
+        global _ACTIVE
+        if self.traci is not None:
+            try:
+                self.traci.close()
+            except Exception:
+                pass
+            self.traci = None
+        if _ACTIVE is self:
+            _ACTIVE = None
+
+    def __enter__(self) -> "SumoSession":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ---- stepping
+    def step(self) -> float:
+        """Advance SUMO by one step; returns the new simulation time [s]."""
+        try:
+            self.traci.simulationStep()
+        except Exception as exc:
+            raise SumoError(f"SUMO step failed at t={self.time:.2f} s: {exc}") from None
+        return self.time
+
+    @property
+    def time(self) -> float:
+        return self.traci.simulation.getTime()
+
+    def departed(self) -> tuple[str, ...]:
+        return self.traci.simulation.getDepartedIDList()
+
+    def arrived(self) -> tuple[str, ...]:
+        return self.traci.simulation.getArrivedIDList()
+
+    def vehicle_ids(self) -> tuple[str, ...]:
+        return self.traci.vehicle.getIDList()
+
+    def pending(self) -> int:
+        """Vehicles still in the network or waiting to depart."""
+        return self.traci.simulation.getMinExpectedNumber()
+
+    # ---- network
+    def route_lanes(self, edges) -> list[tuple[str, list[tuple[float, float]], float]]:
+        """The lanes (index 0) a vehicle drives along ``edges``, junction-internal lanes
+        included: ``[(lane_id, shape, sumo_length), ...]``."""
+        t = self.traci
+        out = []
+        for k, e in enumerate(edges):
+            lane = f"{e}_0"
+            out.append((lane, list(t.lane.getShape(lane)), t.lane.getLength(lane)))
+            if k + 1 < len(edges):
+                nxt = edges[k + 1]
+                via = None
+                for link in t.lane.getLinks(lane):
+                    if link[0].rsplit("_", 1)[0] == nxt:
+                        via = link[4]
+                        break
+                if via is None:
+                    raise SumoError(f"edge {e!r} has no connection to {nxt!r}")
+                # an internal lane may be split in several pieces (lane ids :J_n_0, followed by links)
+                while via and via.startswith(":"):
+                    out.append((via, list(t.lane.getShape(via)), t.lane.getLength(via)))
+                    links = t.lane.getLinks(via)
+                    via = links[0][0] if links and links[0][0].startswith(":") else None
+        return out
+
+    # ---- vehicles
+    def front_pose(self, vid: str) -> tuple[float, float, float]:
+        """Front-bumper position [m] and heading [rad]."""
+        x, y = self.traci.vehicle.getPosition(vid)
+        return x, y, heading_from_nav(self.traci.vehicle.getAngle(vid))
+
+    def speed(self, vid: str) -> float:
+        return self.traci.vehicle.getSpeed(vid)
+
+    def lane_position(self, vid: str) -> tuple[str, float]:
+        """(lane id, front-bumper position along it [m])."""
+        return self.traci.vehicle.getLaneID(vid), self.traci.vehicle.getLanePosition(vid)
+
+    def hold_speed(self, vid: str, speed: float) -> None:
+        """Let SUMO drive the vehicle at a fixed desired speed (safety checks stay on)."""
+        self.traci.vehicle.setSpeed(vid, speed)
+
+    def push_pose(self, vid: str, x_front: float, y_front: float, psi: float, speed: float) -> None:
+        """Place a remote-controlled vehicle: front bumper at (x, y) [m], heading psi [rad], true
+        speed [m/s] (speed mode 0 so that SUMO does not cap it)."""
+        v = self.traci.vehicle
+        try:
+            v.setSpeedMode(vid, 0)
+            v.setSpeed(vid, max(speed, 0.0))
+            v.moveToXY(vid, "", 0, x_front, y_front, nav_angle(psi), 1)
+        except Exception as exc:
+            raise SumoError(f"moveToXY of {vid} failed at t={self.time:.2f} s: {exc}") from None
+
+    def release(self, vid: str) -> None:
+        """Hand a vehicle back to SUMO's own driving."""
+        v = self.traci.vehicle
+        v.setSpeedMode(vid, DEFAULT_SPEED_MODE)
+        v.setSpeed(vid, -1)
+
+    def collisions(self) -> list[tuple[str, str, str]]:
+        """Collisions SUMO detected in the last step: (collider, victim, type)."""
+        return [(c.collider, c.victim, c.type) for c in self.traci.simulation.getCollisions()]

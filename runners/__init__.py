@@ -1,0 +1,1 @@
+"""How runs are executed: the ``nrtraffic`` command and its runners."""

@@ -1,0 +1,81 @@
+"""The ``nrtraffic`` command."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+
+def _add_run(sub) -> None:
+    p = sub.add_parser("run", help="run one scenario", description="Run one scenario and write its run directory.")
+    p.add_argument("scenario", type=Path, help="scenario.toml (or the folder holding it)")
+    p.add_argument("--seed", type=int, default=None, help="random seed of arrivals and SUMO (default: the scenario's)")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="simulated time [s] (default: the scenario's; 0 runs until every vehicle has left)")
+    p.add_argument("--out", type=Path, default=None, metavar="DIR",
+                   help="run directory (default: runs/<scenario>-seed<N>)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override a scenario setting (repeatable), e.g. --set controller.horizon_s=0.3")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _add_paper(sub) -> None:
+    p = sub.add_parser("paper", help="reproduce the paper's experiments",
+                       description="Reproduce the experiments of Shivam et al. (IFAC 2020) and compare with its numbers.")
+    p.add_argument("experiment", choices=["curved"], help="curved: section 4.1, tracking on a curved road")
+    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
+    p.add_argument("--seed", type=int, default=None, help="random seed (default: the scenario's)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="nrtraffic",
+        description="Co-simulation of signal-free intersections: SUMO + energy-optimal planning + "
+                    "Newton-Raphson-flow tracking of a dynamic bicycle model.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    _add_run(sub)
+    _add_paper(sub)
+    args = parser.parse_args(argv)
+    from nrtraffic.engine import RunFailed
+    from nrtraffic.scenario import ScenarioError
+
+    try:
+        if args.command == "run":
+            return _cmd_run(args)
+        if args.command == "paper":
+            from runners import paper
+
+            return paper.main(args)
+    except ScenarioError as exc:
+        print(f"nrtraffic: scenario error: {exc}", file=sys.stderr)
+        return 2
+    except RunFailed as exc:
+        print(f"nrtraffic: {exc}", file=sys.stderr)
+        if exc.result.run_dir is not None:
+            print(f"nrtraffic: what was finished is in {exc.result.run_dir}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _cmd_run(args) -> int:
+    from nrtraffic import scenario
+    from runners.single import run_scenario
+
+    sc = scenario.load(args.scenario, args.overrides)
+    seed = sc.general.seed if args.seed is None else args.seed
+    out = args.out or Path("runs") / f"{sc.general.name}-seed{seed}"
+    res = run_scenario(sc, out, seed=seed, duration_s=args.duration, progress=not args.no_progress)
+    s = res.summary
+    keys = ["vehicles_completed", "throughput_veh_h", "mean_delay_s", "collisions", "max_tracking_error_m",
+            "steady_tracking_error_m", "max_lateral_dev_m", "min_bumper_gap_m", "real_time_factor"]
+    print(json.dumps({k: s.get(k) for k in keys}, indent=1))
+    print(f"run directory: {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

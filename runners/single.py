@@ -1,0 +1,51 @@
+"""One run of one scenario into a run directory."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+from nrtraffic import scenario as scenario_mod
+from nrtraffic.engine import Engine, RunFailed
+from nrtraffic.results import RunResult, TrajectoryWriter, write_summary, write_vehicles
+
+
+def prepare_run_dir(sc: scenario_mod.Scenario, out: Path) -> Path:
+    """Create ``out`` with the SUMO network copied in and ``scenario.resolved.toml`` written."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "sumo").mkdir(exist_ok=True)
+    net = sc.network_path
+    dst = out / "sumo" / net.name
+    if net.resolve() != dst.resolve():
+        shutil.copyfile(net, dst)
+    return out
+
+
+def run_scenario(sc: scenario_mod.Scenario, out: Path, seed: int | None = None, duration_s: float | None = None,
+                 progress: bool = False) -> RunResult:
+    """Run ``sc`` and write the run directory ``out``; raises :class:`RunFailed` after writing what
+    was finished when the run stops early."""
+    out = prepare_run_dir(sc, out)
+    seed = sc.general.seed if seed is None else seed
+    # record the configuration that produced the run, with the seed and duration actually used
+    import dataclasses
+
+    general = dataclasses.replace(sc.general, seed=int(seed),
+                                  duration_s=float(sc.general.duration_s if duration_s is None else duration_s))
+    resolved = dataclasses.replace(sc, general=general)
+    scenario_mod.dump(resolved, out / "scenario.resolved.toml", network=f"sumo/{sc.network_path.name}")
+    writer = TrajectoryWriter(out / "trajectories.parquet")
+    engine = Engine(resolved, out, trajectories=writer, progress=progress)
+    try:
+        result = engine.run()
+    except RunFailed as exc:
+        _write(exc.result, out)
+        raise
+    _write(result, out)
+    return result
+
+
+def _write(result: RunResult, out: Path) -> None:
+    write_vehicles(out / "vehicles.csv", result.vehicles)
+    write_summary(out / "summary.json", result.summary)
