@@ -20,7 +20,7 @@ import pandas as pd
 
 from nrtraffic import __version__, metrics
 from nrtraffic.control.batch import (ACC_ENERGY, ACC_FUEL, ACC_MAX_ABS_A, ACC_MAX_ERR, ACC_MAX_ERR_STEADY,
-                                     ACC_MAX_LAT, N_ACC, advance)
+                                     ACC_MAX_ERR_TRANSIENT, ACC_MAX_LAT, N_ACC, advance)
 from nrtraffic.demand import shifted_exponential_arrivals
 from nrtraffic.geometry import LanePath
 from nrtraffic.planning.coordinator import Coordinator, ScheduleInfeasible
@@ -29,7 +29,8 @@ from nrtraffic.scenario import Scenario
 from nrtraffic.sumo.adapter import SumoSession, VehicleType, sumo_version, write_routes
 
 N_PROFILE_SEG = 5  # packed profile segments (at most 3 arcs + cruise, padded)
-STEADY_AFTER_S = 3.0  # DESIGN.md: steady-state tracking error counts after 3 s under control
+STEADY_AFTER_S = 3.0
+PATH_SPACING_M = 0.25  # sampling of the smoothed lane paths [m]  # DESIGN.md: steady-state tracking error counts after 3 s under control
 
 
 class RunFailed(RuntimeError):
@@ -131,13 +132,12 @@ class Engine:
         z = self.sc.zones
         for a in self.sc.approaches:
             lanes = sumo.route_lanes(a.route)
-            pts, offsets, s0 = [], {}, 0.0
-            for lane, shape, length in lanes:
-                seg = np.hypot(*np.diff(np.asarray(shape), axis=0).T).sum() if len(shape) > 1 else 0.0
-                offsets[lane] = (s0, (seg / length) if length > 0 else 1.0)
-                s0 += seg
-                pts += shape
-            path = LanePath.from_points(pts)
+            pts = [pt for _, shape, _ in lanes for pt in shape]
+            path = LanePath.from_points(pts, smooth_spacing=PATH_SPACING_M)
+            # arc length of each lane's start on the (smoothed) path; lane positions scale linearly
+            starts = [path.project(shape[0])[0] for _, shape, _ in lanes] + [path.length]
+            offsets = {lane: (starts[k], (starts[k + 1] - starts[k]) / length if length > 0 else 1.0)
+                       for k, (lane, _, length) in enumerate(lanes)}
             lane_m = f"{a.merge_entry_edge}_0"
             s_m = offsets[lane_m][0] + a.merge_entry_pos_m * offsets[lane_m][1]
             s_c = s_m - z.control_zone_m
@@ -201,8 +201,10 @@ class Engine:
         approaching: list[str] = []
         step = 0
         total = self.duration if self.duration > 0 else None
-        bar = tqdm(total=total, unit="sim s", disable=not self.progress, leave=False,
-                   bar_format="{l_bar}{bar}| {n:.0f}/{total_fmt} sim s [{elapsed}<{remaining}]" if total else None)
+        fmt = ("{l_bar}{bar}| {n:.0f}/{total:.0f} sim s [{elapsed}<{remaining}]" if total
+               else "{desc}: {n:.0f} sim s [{elapsed}, {rate_fmt}]")
+        bar = tqdm(total=total, desc=self.sc.general.name, unit="sim s", disable=not self.progress, leave=False,
+                   bar_format=fmt)
         try:
             while True:
                 self.t = self.sumo.time
@@ -416,8 +418,6 @@ class Engine:
                 self.sumo.release(vid)
                 rec.status = "released"
                 keep[i] = False
-            if not keep[i]:
-                rec.acc = self.acc[i].copy()
         for i, vid in enumerate(self.batch_ids):
             if not keep[i]:
                 self.records[vid].acc = self.acc[i].copy()
@@ -444,6 +444,7 @@ class Engine:
                 "t_merge_actual_s": rec.t_merge_actual, "t_exit_s": rec.t_exit, "delay_s": delay,
                 "max_tracking_error_m": a[ACC_MAX_ERR] if admitted else math.nan,
                 "steady_tracking_error_m": a[ACC_MAX_ERR_STEADY] if admitted else math.nan,
+                "transient_tracking_error_m": a[ACC_MAX_ERR_TRANSIENT] if admitted else math.nan,
                 "max_lateral_dev_m": a[ACC_MAX_LAT] if admitted else math.nan,
                 "min_bumper_gap_m": rec.min_gap if math.isfinite(rec.min_gap) else math.nan,
                 "energy_u2": a[ACC_ENERGY] if admitted else math.nan,
@@ -478,6 +479,7 @@ class Engine:
             "min_bumper_gap_m": metrics.min_or_none(adm["min_bumper_gap_m"]),
             "max_tracking_error_m": metrics.max_or_none(adm["max_tracking_error_m"]),
             "steady_tracking_error_m": metrics.max_or_none(adm["steady_tracking_error_m"]),
+            "transient_tracking_error_m": metrics.max_or_none(adm["transient_tracking_error_m"]),
             "max_lateral_dev_m": metrics.max_or_none(adm["max_lateral_dev_m"]),
             "max_abs_accel_mps2": metrics.max_or_none(adm["max_abs_accel_mps2"]),
             "mean_energy_u2": metrics.mean_or_none(done["energy_u2"]),

@@ -29,16 +29,19 @@ class LanePath:
     s: np.ndarray
 
     @classmethod
-    def from_points(cls, points, min_spacing: float = 1e-6) -> "LanePath":
-        """Build from vertices, dropping consecutive duplicates (closer than ``min_spacing`` m)."""
-        pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-        keep = [0]
-        for i in range(1, len(pts)):
-            if np.hypot(*(pts[i] - pts[keep[-1]])) > min_spacing:
-                keep.append(i)
-        pts = pts[keep]
+    def from_points(cls, points, min_spacing: float = 1e-3, smooth_spacing: float | None = None) -> "LanePath":
+        """Build from vertices, dropping consecutive near-duplicates (closer than ``min_spacing`` m).
+
+        With ``smooth_spacing`` the vertices are joined by a centripetal Catmull-Rom spline (C^1,
+        through every vertex, no overshoot or cusps) sampled about every ``smooth_spacing`` m: SUMO's
+        lane shapes are polylines whose heading jumps at every vertex, which a tracker following
+        them would feel as steering kicks.
+        """
+        pts = _dedupe(np.asarray(points, dtype=np.float64).reshape(-1, 2), min_spacing)
         if len(pts) < 2:
             raise ValueError("a lane path needs at least two distinct points")
+        if smooth_spacing is not None and len(pts) > 2:
+            pts = _dedupe(_catmull_rom(pts, smooth_spacing), min_spacing)
         seg = np.hypot(*np.diff(pts, axis=0).T)
         s = np.concatenate([[0.0], np.cumsum(seg)])
         pts.setflags(write=False)
@@ -91,6 +94,39 @@ class LanePath:
         s = self.s[k] + t_in[k] * seg
         cross = d[k, 0] * (q[1] - a[k, 1]) - d[k, 1] * (q[0] - a[k, 0])
         return float(s), float(cross / seg)
+
+
+def _dedupe(pts: np.ndarray, min_spacing: float) -> np.ndarray:
+    keep = [0]
+    for i in range(1, len(pts)):
+        if np.hypot(*(pts[i] - pts[keep[-1]])) > min_spacing:
+            keep.append(i)
+    if keep[-1] != len(pts) - 1 and len(keep) > 1:
+        keep[-1] = len(pts) - 1  # keep the true end point
+    return pts[keep]
+
+
+def _catmull_rom(pts: np.ndarray, spacing: float) -> np.ndarray:
+    """Centripetal Catmull-Rom spline through ``pts`` (end tangents by reflection), sampled so that
+    consecutive samples are about ``spacing`` apart."""
+    ext = np.vstack([2 * pts[0] - pts[1], pts, 2 * pts[-1] - pts[-2]])
+    out = [pts[:1]]
+    for i in range(1, len(ext) - 2):
+        p0, p1, p2, p3 = ext[i - 1], ext[i], ext[i + 1], ext[i + 2]
+        d01 = max(np.hypot(*(p1 - p0)), 1e-9) ** 0.5
+        d12 = max(np.hypot(*(p2 - p1)), 1e-9) ** 0.5
+        d23 = max(np.hypot(*(p3 - p2)), 1e-9) ** 0.5
+        t0, t1 = 0.0, d01
+        t2, t3 = t1 + d12, t1 + d12 + d23
+        n = max(1, int(np.ceil(np.hypot(*(p2 - p1)) / spacing)))
+        t = np.linspace(t1, t2, n + 1)[1:, None]
+        a1 = (t1 - t) / (t1 - t0) * p0 + (t - t0) / (t1 - t0) * p1
+        a2 = (t2 - t) / (t2 - t1) * p1 + (t - t1) / (t2 - t1) * p2
+        a3 = (t3 - t) / (t3 - t2) * p2 + (t - t2) / (t3 - t2) * p3
+        b1 = (t2 - t) / (t2 - t0) * a1 + (t - t0) / (t2 - t0) * a2
+        b2 = (t3 - t) / (t3 - t1) * a2 + (t - t1) / (t3 - t1) * a3
+        out.append((t2 - t) / (t2 - t1) * b1 + (t - t1) / (t2 - t1) * b2)
+    return np.vstack(out)
 
 
 @njit(cache=True)

@@ -17,7 +17,8 @@ import pandas as pd
 
 VEHICLE_COLUMNS = [
     "vehicle_id", "approach", "movement", "t_enter_s", "v_enter_mps", "t_merge_planned_s", "t_merge_actual_s",
-    "t_exit_s", "delay_s", "max_tracking_error_m", "steady_tracking_error_m", "max_lateral_dev_m",
+    "t_exit_s", "delay_s", "max_tracking_error_m", "steady_tracking_error_m", "transient_tracking_error_m",
+    "max_lateral_dev_m",
     "min_bumper_gap_m", "energy_u2", "fuel_ml", "predecessor", "relation", "binding", "profile", "v_merge_planned_mps",
     "min_center_distance_m", "max_abs_accel_mps2", "status",
 ]

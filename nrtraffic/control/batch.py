@@ -20,8 +20,8 @@ from nrtraffic.metrics import fuel_rate
 from nrtraffic.planning.profiles import packed_position
 from nrtraffic.vehicle.bicycle import euler_step
 
-ACC_MAX_ERR, ACC_MAX_ERR_STEADY, ACC_MAX_LAT, ACC_ENERGY, ACC_FUEL, ACC_MAX_ABS_A = range(6)
-N_ACC = 6
+ACC_MAX_ERR, ACC_MAX_ERR_STEADY, ACC_MAX_LAT, ACC_ENERGY, ACC_FUEL, ACC_MAX_ABS_A, ACC_MAX_ERR_TRANSIENT = range(7)
+N_ACC = 7
 
 
 @njit(cache=True)
@@ -76,8 +76,11 @@ def advance(X, U, t_start, n_sub, h, plant_p, pred_p, horizon, dt_pred, alpha, d
             sp, lat, hint[i] = project_local(xy, s, x[0], x[1], hint[i], 3, 12)
             if err > acc[i, ACC_MAX_ERR]:
                 acc[i, ACC_MAX_ERR] = err
-            if tn - t_enter[i] > steady_after and err > acc[i, ACC_MAX_ERR_STEADY]:
-                acc[i, ACC_MAX_ERR_STEADY] = err
+            if tn - t_enter[i] > steady_after:
+                if err > acc[i, ACC_MAX_ERR_STEADY]:
+                    acc[i, ACC_MAX_ERR_STEADY] = err
+            elif err > acc[i, ACC_MAX_ERR_TRANSIENT]:
+                acc[i, ACC_MAX_ERR_TRANSIENT] = err
             if abs(lat) > acc[i, ACC_MAX_LAT]:
                 acc[i, ACC_MAX_LAT] = abs(lat)
             if j == n_sub - 1:
