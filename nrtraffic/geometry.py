@@ -107,9 +107,10 @@ def _dedupe(pts: np.ndarray, min_spacing: float) -> np.ndarray:
 
 
 def _catmull_rom(pts: np.ndarray, spacing: float) -> np.ndarray:
-    """Centripetal Catmull-Rom spline through ``pts`` (end tangents by reflection), sampled so that
-    consecutive samples are about ``spacing`` apart."""
-    ext = np.vstack([2 * pts[0] - pts[1], pts, 2 * pts[-1] - pts[-2]])
+    """Centripetal Catmull-Rom spline through ``pts`` (at least 3), sampled so that consecutive
+    samples are about ``spacing`` apart. The phantom end points are quadratic extrapolations, which
+    keep the end segments on a curve of the neighbouring curvature (straight ends stay straight)."""
+    ext = np.vstack([3 * pts[0] - 3 * pts[1] + pts[2], pts, 3 * pts[-1] - 3 * pts[-2] + pts[-3]])
     out = [pts[:1]]
     for i in range(1, len(ext) - 2):
         p0, p1, p2, p3 = ext[i - 1], ext[i], ext[i + 1], ext[i + 2]

@@ -1,0 +1,36 @@
+# Set-up and everyday targets. `make run` and `make test` work on a fresh machine with Python >= 3.11:
+# they create .venv, install nrtraffic with SUMO from PyPI, and run.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+SCENARIO ?= sumo_scenarios/paper_curved/scenario.toml
+OUT    ?= runs
+
+.PHONY: install run test paper bench nets clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e ".[test]"
+	touch $(STAMP)
+
+install: $(STAMP)
+
+run: $(STAMP)
+	$(BIN)/nrtraffic run $(SCENARIO) --out $(OUT)/default
+
+test: $(STAMP)
+	$(BIN)/python -m pytest
+
+paper: $(STAMP)
+	$(BIN)/nrtraffic paper all --out $(OUT)/paper
+
+bench: $(STAMP)
+	$(BIN)/nrtraffic bench
+
+nets: $(STAMP)
+	$(BIN)/python sumo_scenarios/paper_curved/generate.py
+
+clean:
+	rm -rf $(VENV) $(OUT) .pytest_cache

@@ -1,0 +1,103 @@
+"""The plant against finite differences and closed forms."""
+
+import math
+
+import numpy as np
+import pytest
+
+from nrtraffic.vehicle.bicycle import dynamics, jacobians, simulate
+from nrtraffic.vehicle.params import BicycleParams, preset
+
+P = preset("paper")
+p = P.as_array()
+
+
+def _f(x, u):
+    out = np.empty(6)
+    dynamics(np.asarray(x, float), np.asarray(u, float), p, out)
+    return out
+
+
+@pytest.mark.parametrize("vl", [15.0, 3.0, 1.4, 1.0, 0.7, 0.3, 0.0])
+def test_jacobians_match_finite_differences(vl):
+    rng = np.random.default_rng(int(vl * 10))
+    for _ in range(5):
+        x = np.array([rng.normal(), rng.normal(), vl, 0.05 * rng.normal() * max(vl, 0.1), rng.uniform(-3, 3),
+                      0.1 * rng.normal()])
+        u = np.array([rng.normal(), 0.2 * rng.normal()])
+        fx, fu = np.empty((6, 6)), np.empty((6, 2))
+        jacobians(x, u, p, fx, fu)
+        for k in range(6):
+            h = 1e-6
+            if k == 2 and vl == 0.0:
+                continue  # v_l = 0 is the edge of the blend's flat region
+            e = np.zeros(6)
+            e[k] = h
+            num = (_f(x + e, u) - _f(x - e, u)) / (2 * h)
+            assert np.allclose(fx[:, k], num, rtol=1e-5, atol=1e-5 * (1 + np.abs(num).max())), (vl, k)
+        for k in range(2):
+            h = 1e-7
+            e = np.zeros(2)
+            e[k] = h
+            num = (_f(x, u + e) - _f(x, u - e)) / (2 * h)
+            assert np.allclose(fu[:, k], num, rtol=1e-5, atol=1e-5 * (1 + np.abs(num).max())), (vl, k)
+
+
+def test_straight_constant_speed_moves_v_t():
+    h, n, v = 0.005, 2000, 13.4
+    psi = 0.7
+    xs = simulate([1.0, -2.0, v, 0.0, psi, 0.0], [0.0, 0.0], p, h, n)
+    t = h * n
+    assert xs[-1, 0] == pytest.approx(1.0 + v * t * math.cos(psi), abs=1e-9)
+    assert xs[-1, 1] == pytest.approx(-2.0 + v * t * math.sin(psi), abs=1e-9)
+    assert np.abs(xs[:, 3]).max() < 1e-12 and np.abs(xs[:, 5]).max() < 1e-12
+    assert np.allclose(xs[:, 4], psi)
+
+
+def test_steady_cornering_matches_linear_bicycle_understeer():
+    # independent closed form: r = v delta / (L + K v^2), K = m / L (l_r / C_f - l_f / C_r),
+    # axle stiffness C = 2 C_alpha (eq. 1 has two tyres per axle)
+    v, delta = 15.0, 0.002
+    xs = simulate([0, 0, v, 0, 0, 0], [0.0, delta], p, 0.001, 20000)
+    L = P.lf + P.lr
+    K = P.m / L * (P.lr / (2 * P.Caf) - P.lf / (2 * P.Car))
+    r_expected = v * delta / (L + K * v * v)
+    assert xs[-1, 5] == pytest.approx(r_expected, rel=2e-3)
+
+
+def test_kinematic_limit_at_low_speed():
+    # below v_blend_low: no-slip yaw rate v tan(delta) / L and lateral velocity l_r * yaw rate
+    v, delta = 0.3, 0.3
+    xs = simulate([0, 0, v, 0, 0, 0], [0.0, delta], p, 0.005, 400)
+    L = P.lf + P.lr
+    vl = xs[-1, 2]  # v_l' = psi_dot v_n lets the speed creep up slightly
+    assert vl == pytest.approx(v, rel=0.05)
+    assert xs[-1, 5] == pytest.approx(vl * math.tan(delta) / L, rel=1e-4)
+    assert xs[-1, 3] == pytest.approx(P.lr * vl * math.tan(delta) / L, rel=1e-4)
+
+
+def test_finite_and_stable_from_speed_to_standstill_and_back():
+    x = np.array([0, 0, 15.0, 0, 0, 0])
+    h = 0.005
+    hist = []
+    # brake to a stop while steering, steer at standstill, accelerate straight, corner, straighten
+    for a, d, n in [(-3.0, 0.05, 1400), (0.0, 0.3, 400), (2.0, 0.0, 1600), (0.0, -0.02, 600), (0.0, 0.0, 1000)]:
+        xs = simulate(x, [a, d], p, h, n)
+        hist.append(xs)
+        x = xs[-1]
+        if len(hist) == 3:  # from rest, straight: exactly 2 m/s^2 for 8 s
+            assert x[2] == pytest.approx(16.0, abs=1e-5)
+    allx = np.vstack(hist)
+    assert np.all(np.isfinite(allx))
+    assert allx[:, 2].min() >= 0.0  # never reverses
+    # lateral velocity and yaw rate stay physical (no Euler blow-up near standstill)
+    assert np.abs(allx[:, 3]).max() < 2.0 and np.abs(allx[:, 5]).max() < 1.5
+    # and settle after the transient (straight, constant speed)
+    assert abs(allx[-1, 5]) < 1e-3 and abs(allx[-1, 3]) < 1e-3
+
+
+def test_invalid_parameters_are_rejected():
+    with pytest.raises(ValueError, match="m must be"):
+        BicycleParams(m=-1.0)
+    with pytest.raises(ValueError, match="unknown vehicle preset"):
+        preset("nope")

@@ -1,0 +1,27 @@
+import subprocess
+import sys
+
+from runners.cli import main
+
+
+def test_help_lists_commands(capsys):
+    try:
+        main(["--help"])
+    except SystemExit as exc:
+        assert exc.code == 0
+    out = capsys.readouterr().out
+    assert "run" in out and "paper" in out
+
+
+def test_bad_scenario_gives_a_clear_error_and_exit_2(tmp_path, capsys):
+    bad = tmp_path / "scenario.toml"
+    bad.write_text('[scenario]\nname = "x"\nnetwork = "missing.net.xml"\n[[approaches]]\nname = "a"\n'
+                   'route = ["e"]\nmerge_entry_edge = "e"\n')
+    assert main(["run", str(bad), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "network file not found" in err and "missing.net.xml" in err
+
+
+def test_console_script_runs(paper_curved_path, tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "runners.cli", "run", "--help"], capture_output=True, text=True)
+    assert proc.returncode == 0 and "--seed" in proc.stdout

@@ -1,0 +1,59 @@
+import math
+
+import numpy as np
+import pytest
+
+from nrtraffic.geometry import LanePath, path_xy, project_local
+
+R = 821.24
+
+
+def _arc(n=431, length=430.0):
+    th = np.linspace(0, length / R, n)
+    return np.c_[R * np.sin(th), R * (1 - np.cos(th))]
+
+
+def test_arc_length_and_heading_of_a_polyline_circle():
+    path = LanePath.from_points(_arc())
+    assert path.length == pytest.approx(430.0, abs=1e-3)  # chords of 1 m on R = 821 m
+    assert path.heading_at(215.0) == pytest.approx(215.0 / R, abs=1e-3)
+
+
+@pytest.mark.parametrize("smooth", [None, 0.25])
+def test_projection_round_trips(smooth):
+    path = LanePath.from_points(_arc(), smooth_spacing=smooth)
+    rng = np.random.default_rng(3)
+    for s, lat in zip(rng.uniform(1, 429, 200), rng.uniform(-2, 2, 200)):
+        xy = path.xy_at(s)
+        h = path.heading_at(s)
+        q = xy + lat * np.array([-math.sin(h), math.cos(h)])
+        s2, lat2 = path.project(q)
+        assert s2 == pytest.approx(s, abs=5e-3) and lat2 == pytest.approx(lat, abs=5e-3)
+        # the compiled local projection agrees
+        i0 = int(np.searchsorted(path.s, s)) - 1
+        s3, lat3, _ = project_local(path.xy, path.s, q[0], q[1], max(i0, 0), 3, 12)
+        assert s3 == pytest.approx(s2, abs=1e-9) and lat3 == pytest.approx(lat2, abs=1e-9)
+
+
+def test_smoothed_path_passes_through_the_vertices_and_stays_on_the_circle():
+    pts = _arc(44)  # 10 m chords
+    path = LanePath.from_points(pts, smooth_spacing=0.25)
+    for p in pts:
+        assert np.min(np.hypot(*(path.xy - p).T)) < 1e-9
+    # centripetal Catmull-Rom on a circle: far closer to the circle than the 10 m chords
+    # (sagitta 10^2 / (8 R) = 1.5 cm)
+    r = np.hypot(path.xy[:, 0], path.xy[:, 1] - R)
+    assert np.abs(r - R).max() < 2e-3
+
+
+def test_compiled_path_xy_matches_numpy():
+    path = LanePath.from_points([(0, 0), (10, 0), (20, 5), (25, 15)])
+    s = np.linspace(0, path.length, 57)
+    out = np.empty((len(s), 2))
+    path_xy(s, path.xy, path.s, out)
+    assert np.allclose(out, path.xy_at(s))
+
+
+def test_path_needs_two_points():
+    with pytest.raises(ValueError):
+        LanePath.from_points([(1, 1), (1, 1)])

@@ -1,0 +1,96 @@
+"""The Newton-Raphson-flow tracker: exact sensitivities, regularised inverse, closed loop."""
+
+import math
+
+import numpy as np
+import pytest
+
+from nrtraffic.control.nr_flow import nr_direction, nr_update, predict
+from nrtraffic.vehicle.bicycle import euler_step
+from nrtraffic.vehicle.params import preset
+
+P = preset("paper")
+p = P.as_array()
+p2 = P.with_mass_factor(2.0).as_array()
+
+
+def _g(x, u, params=p, T=0.2, dt=0.001):
+    g, J = np.empty(2), np.empty((2, 2))
+    predict(np.asarray(x, float), np.asarray(u, float), params, T, dt, True, g, J)
+    return g, J
+
+
+@pytest.mark.parametrize("vl", [13.4, 2.0, 1.0, 0.4])
+def test_sensitivity_jacobian_matches_finite_differences_of_predictor(vl):
+    x = np.array([3.0, -1.0, vl, 0.02 * vl, 0.4, 0.01])
+    u = np.array([0.3, 0.04])
+    g, J = _g(x, u, p2)
+    for k in range(2):
+        e = np.zeros(2)
+        e[k] = 1e-6
+        num = (_g(x, u + e, p2)[0] - _g(x, u - e, p2)[0]) / 2e-6
+        assert np.allclose(J[:, k], num, rtol=1e-6, atol=1e-9), k
+
+
+def test_predictor_is_euler_of_the_plant():
+    x = np.array([0.0, 0.0, 10.0, 0.1, 0.2, 0.05])
+    u = np.array([0.5, 0.03])
+    g, _ = _g(x, u, p, T=0.3, dt=0.001)
+    xe = x.copy()
+    w = np.empty(6)
+    for _ in range(300):
+        euler_step(xe, u, p, 0.001, w)
+    assert np.allclose(g, xe[:2], atol=1e-12)
+
+
+def test_nr_direction_is_the_inverse_without_damping_and_finite_when_singular():
+    J = np.array([[0.02, 0.001], [-0.003, 0.9]])
+    e = np.array([0.1, -0.2])
+    du = np.empty(2)
+    nr_direction(J, e, 0.0, du)
+    assert np.allclose(du, np.linalg.solve(J, e))
+    # standstill: steering column zero -> no steering change, acceleration still solved
+    Js = np.array([[0.02, 0.0], [0.0, 0.0]])
+    nr_direction(Js, e, 1e-6, du)
+    assert np.all(np.isfinite(du)) and du[1] == 0.0
+    assert du[0] == pytest.approx(0.1 / 0.02, rel=1e-5)
+
+
+def _closed_loop(x0, ref, n, T=0.2, h=0.005, params_pred=p2):
+    x = np.array(x0, float)
+    u, un, w = np.zeros(2), np.zeros(2), np.empty(6)
+    lo, hi = np.array([-6.0, -math.pi / 4]), np.array([3.0, math.pi / 4])
+    errs = []
+    for k in range(n):
+        t = k * h
+        nr_update(x, u, params_pred, ref(t + T), T, 0.001, 100.0, 1e-6, h, lo, hi, un)
+        euler_step(x, u, p, h, w)
+        u[:] = un
+        errs.append(np.hypot(*(x[:2] - ref(t + h))))
+    return np.array(errs), x
+
+
+def test_closed_loop_converges_to_a_straight_reference_with_model_error():
+    v = 13.4
+    errs, x = _closed_loop([0.0, 0.5, v, 0, 0, 0], lambda t: np.array([v * t, 0.0]), 2000)
+    assert errs[0] > 0.4
+    assert errs[-400:].max() < 1e-3  # converged within 10 s, despite the 2x predictor mass
+    assert abs(x[4]) < 1e-3
+
+
+def test_closed_loop_tracks_a_stop_and_go_reference():
+    # decelerate 13.4 -> 0 at 2 m/s^2, stand 3 s, accelerate at 1 m/s^2: finite, no reversing, tracks
+    def ref(t):
+        t1 = 6.7
+        if t < t1:
+            s = 13.4 * t - t * t
+        elif t < t1 + 3.0:
+            s = 13.4 * t1 - t1 * t1
+        else:
+            s = 13.4 * t1 - t1 * t1 + 0.5 * (t - t1 - 3.0) ** 2
+        return np.array([s, 0.0])
+
+    errs, x = _closed_loop([0.0, 0.0, 13.4, 0, 0, 0], ref, 3000)
+    assert np.all(np.isfinite(errs))
+    assert errs.max() < 0.05
+    assert x[2] == pytest.approx(1.0 * (15.0 - 9.7), abs=0.05)

@@ -1,0 +1,130 @@
+"""Energy-optimal profiles against closed forms and an independent discretised QP."""
+
+import numpy as np
+import pytest
+from scipy.integrate import quad
+
+from nrtraffic.planning.profiles import (InfeasibleProfile, PlanBounds, fixed_terminal, free_terminal, max_time,
+                                         min_time)
+
+B = PlanBounds(v_min_mps=1.0, v_max_mps=20.0, u_min_mps2=-3.0, u_max_mps2=2.5)
+
+
+def _num_energy(prof):
+    # 1/2 int u^2 by adaptive quadrature of the evaluated profile, split at the knots
+    pts = list(prof.knots[(prof.knots > 0) & (prof.knots < prof.T)])
+    val, _ = quad(lambda t: prof.evaluate(prof.t0 + t)[2] ** 2, 0.0, prof.T, points=pts or None, limit=200)
+    return 0.5 * val
+
+
+@pytest.mark.parametrize("v0,D,T", [(13.4, 400.0, 29.85), (13.4, 400.0, 38.0), (13.4, 400.0, 60.0), (10.0, 400.0, 30.0)])
+def test_free_terminal_unconstrained_boundary_conditions_and_cost(v0, D, T):
+    prof = free_terminal(5.0, v0, D, T, B)
+    assert prof.kind == "unconstrained"
+    p, v, u = prof.evaluate(np.array([5.0, 5.0 + T]))
+    assert p[0] == pytest.approx(0.0, abs=1e-12) and v[0] == pytest.approx(v0)
+    assert p[1] == pytest.approx(D, rel=1e-12)
+    assert u[1] == pytest.approx(0.0, abs=1e-12)  # free terminal speed: u(t_m) = 0
+    assert v[1] == pytest.approx((3 * D / T - v0) / 2)
+    closed = 3 * (D - v0 * T) ** 2 / (2 * T**3)
+    assert prof.energy() == pytest.approx(closed, rel=1e-10, abs=1e-14)
+    assert _num_energy(prof) == pytest.approx(closed, rel=1e-6, abs=1e-12)
+
+
+def test_profile_is_consistent_double_integrator():
+    # v is the derivative of p and u of v (central differences), on every arc kind
+    for T in (38.0, 200.0, 21.0, min_time(13.4, 400.0, B) + 0.05, max_time(13.4, 400.0, B) - 0.5):
+        prof = free_terminal(0.0, 13.4, 400.0, T, B)
+        t = np.linspace(0.01, T - 0.01, 997)
+        h = 1e-4
+        p1, v1, u1 = prof.evaluate(t + h)
+        p0, v0, u0 = prof.evaluate(t - h)
+        _, v, u = prof.evaluate(t)
+        assert np.allclose((p1 - p0) / (2 * h), v, atol=1e-5), prof.kind
+        assert np.allclose((v1 - v0) / (2 * h), u, atol=1e-3), prof.kind
+
+
+@pytest.mark.parametrize("T,kind", [(200.0, "speed"), (21.0, "speed")])
+def test_speed_bounded_profiles(T, kind):
+    prof = free_terminal(0.0, 13.4, 400.0, T, B)
+    assert prof.kind == kind
+    t = np.linspace(0, T, 4001)
+    p, v, u = prof.evaluate(t)
+    assert v.min() >= B.v_min_mps - 1e-9 and v.max() <= B.v_max_mps + 1e-9
+    assert u.min() >= B.u_min_mps2 - 1e-9 and u.max() <= B.u_max_mps2 + 1e-9
+    assert p[-1] == pytest.approx(400.0)
+    # the junction with the cruise arc is tangential: u = 0 where the bound is reached
+    vb = B.v_max_mps if T < 29.85 else B.v_min_mps
+    tau1 = 3 * (vb * T - 400.0) / (vb - 13.4)
+    assert prof.evaluate(tau1)[2] == pytest.approx(0.0, abs=1e-9)
+    assert prof.evaluate(tau1)[1] == pytest.approx(vb)
+
+
+def _qp_energy(v0, D, T, b, n=400):
+    """Independent reference: the discretised problem min 1/2 sum u_k^2 dt s.t. double-integrator
+    dynamics (exact zero-order hold), p_N = D, bounds on u and v -- solved as a QP by OSQP."""
+    from qpsolvers import solve_qp
+
+    dt = T / n
+    # p_N = v0 T + sum_k u_k dt^2 (N - k - 1/2); v_j = v0 + dt sum_{k<j} u_k
+    A_eq = np.array([[dt * dt * (n - k - 0.5) for k in range(n)]])
+    b_eq = np.array([D - v0 * T])
+    L = np.tril(np.ones((n, n))) * dt
+    G = np.vstack([L, -L])
+    h = np.concatenate([np.full(n, b.v_max_mps - v0), np.full(n, v0 - b.v_min_mps)])
+    P = np.eye(n) * dt
+    q = np.zeros(n)
+    u = solve_qp(P, q, G, h, A_eq, b_eq, lb=np.full(n, b.u_min_mps2), ub=np.full(n, b.u_max_mps2),
+                 solver="osqp", eps_abs=1e-9, eps_rel=1e-9, max_iter=200000, polishing=True)
+    assert u is not None
+    return 0.5 * float(np.sum(u * u) * dt)
+
+
+@pytest.mark.parametrize("T", [21.0, 38.0, 150.0, 200.0])
+def test_constrained_profile_matches_discretised_qp(T):
+    prof = free_terminal(0.0, 13.4, 400.0, T, B)
+    ref = _qp_energy(13.4, 400.0, T, B)
+    assert prof.energy() == pytest.approx(ref, rel=0.01, abs=1e-4)
+
+
+def test_acceleration_saturated_profiles_match_qp():
+    tight = PlanBounds(v_min_mps=1.0, v_max_mps=30.0, u_min_mps2=-0.15, u_max_mps2=0.15)
+    # decelerating hard enough that the unconstrained u(0) exceeds the 0.15 m/s^2 bound
+    T = 36.0
+    unc = 3 * (400.0 - 13.4 * T) / T**2
+    assert abs(unc) > 0.15
+    prof = free_terminal(0.0, 13.4, 400.0, T, tight)
+    assert prof.kind in ("accel", "accel_speed")
+    _, _, u = prof.evaluate(np.linspace(0, T, 2001))
+    assert u.min() >= -0.15 - 1e-9
+    assert u[-2] == pytest.approx(0.0, abs=1e-3)
+    assert prof.energy() == pytest.approx(_qp_energy(13.4, 400.0, T, tight), rel=0.01)
+
+
+def test_fixed_terminal_solves_the_boundary_value_system():
+    v0, vm, D, T = 13.4, 8.0, 400.0, 35.0
+    prof = fixed_terminal(0.0, v0, vm, D, T)
+    # independent: the 4x4 system p = a t^3/6 + b t^2/2 + c t + d for (a, b, c, d)
+    M = np.array([[0, 0, 0, 1], [0, 0, 1, 0], [T**3 / 6, T**2 / 2, T, 1], [T**2 / 2, T, 1, 0]])
+    a, b, c, d = np.linalg.solve(M, [0.0, v0, D, vm])
+    t = np.linspace(0, T, 50)
+    p, v, u = prof.evaluate(t)
+    assert np.allclose(p, a * t**3 / 6 + b * t**2 / 2 + c * t + d)
+    assert np.allclose(u[:-1], a * t[:-1] + b)  # after T: constant speed
+    assert v[-1] == pytest.approx(vm)
+
+
+def test_min_and_max_time_are_the_feasibility_limits():
+    t_min = min_time(13.4, 400.0, B)
+    t_max = max_time(13.4, 400.0, B)
+    free_terminal(0.0, 13.4, 400.0, t_min + 1e-3, B)
+    free_terminal(0.0, 13.4, 400.0, t_max - 1e-3, B)
+    with pytest.raises(InfeasibleProfile):
+        free_terminal(0.0, 13.4, 400.0, t_min - 0.05, B)
+    with pytest.raises(InfeasibleProfile):
+        free_terminal(0.0, 13.4, 400.0, t_max + 0.5, B)
+    # bang-cruise closed forms
+    ta = (20.0 - 13.4) / 2.5
+    assert t_min == pytest.approx(ta + (400.0 - (13.4 + 20.0) / 2 * ta) / 20.0)
+    tb = (13.4 - 1.0) / 3.0
+    assert t_max == pytest.approx(tb + (400.0 - (13.4 + 1.0) / 2 * tb) / 1.0)

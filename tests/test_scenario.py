@@ -1,0 +1,63 @@
+import tomllib
+
+import pytest
+
+from nrtraffic import scenario
+from nrtraffic.scenario import ScenarioError
+
+
+def test_paper_scenario_loads(paper_curved_path):
+    sc = scenario.load(paper_curved_path)
+    assert sc.controller.predictor_mass_factor == 2.0
+    assert sc.network_path.is_file()
+    assert sc.vehicle.params().m == 2050.0
+
+
+def _write(tmp_path, paper_curved_path, text_edit):
+    src = paper_curved_path.read_text()
+    dst = tmp_path / "scenario.toml"
+    dst.write_text(text_edit(src))
+    (tmp_path / "curved.net.xml").write_text((paper_curved_path.parent / "curved.net.xml").read_text())
+    return dst
+
+
+def test_unknown_key_is_named(tmp_path, paper_curved_path):
+    f = _write(tmp_path, paper_curved_path, lambda s: s.replace("alpha = 100.0", "alpah = 100.0"))
+    with pytest.raises(ScenarioError, match=r"unknown key controller\.alpah"):
+        scenario.load(f)
+
+
+def test_wrong_type_and_range_are_named(tmp_path, paper_curved_path):
+    f = _write(tmp_path, paper_curved_path, lambda s: s.replace("alpha = 100.0", 'alpha = "fast"'))
+    with pytest.raises(ScenarioError, match=r"controller\.alpha must be a number"):
+        scenario.load(f)
+    f = _write(tmp_path, paper_curved_path, lambda s: s.replace("horizon_s = 0.2", "horizon_s = -1.0"))
+    with pytest.raises(ScenarioError, match=r"controller\.horizon_s must be > 0"):
+        scenario.load(f)
+
+
+def test_missing_network_and_malformed_file(tmp_path, paper_curved_path):
+    f = _write(tmp_path, paper_curved_path, lambda s: s.replace('"curved.net.xml"', '"nothere.net.xml"'))
+    with pytest.raises(ScenarioError, match="network file not found"):
+        scenario.load(f)
+    f = _write(tmp_path, paper_curved_path, lambda s: s + "\n[[[broken")
+    with pytest.raises(ScenarioError, match="not valid TOML"):
+        scenario.load(f)
+    with pytest.raises(ScenarioError, match="scenario file not found"):
+        scenario.load(tmp_path / "none.toml")
+
+
+def test_overrides_and_resolved_round_trip(tmp_path, paper_curved_path):
+    sc = scenario.load(paper_curved_path, ["controller.horizon_s=0.3", 'scenario.network="straight.net.xml"'])
+    assert sc.controller.horizon_s == 0.3 and sc.network_path.name == "straight.net.xml"
+    with pytest.raises(ScenarioError, match="unknown section"):
+        scenario.load(paper_curved_path, ["nosuch.key=1"])
+    out = tmp_path / "resolved.toml"
+    scenario.dump(sc, out)
+    again = scenario.from_dict(tomllib.loads(out.read_text()), paper_curved_path.parent)
+    assert again.to_dict() == sc.to_dict()
+
+
+def test_unknown_vehicle_parameter(paper_curved_path):
+    with pytest.raises(ScenarioError, match="vehicle.wheels is not a vehicle parameter"):
+        scenario.load(paper_curved_path, ["vehicle.wheels=3"])

@@ -1,0 +1,70 @@
+"""SUMO integration: poses pushed with moveToXY are the poses SUMO reports, with the true speed."""
+
+import math
+
+import numpy as np
+import pytest
+
+from nrtraffic.sumo.adapter import SumoSession, VehicleType, heading_from_nav, nav_angle, write_routes
+
+R = 430.0 / (math.pi / 6)
+
+
+def test_nav_angle_round_trip():
+    for psi in np.linspace(-3.1, 3.1, 25):
+        assert heading_from_nav(nav_angle(psi)) == pytest.approx(psi, abs=1e-12)
+    assert nav_angle(0.0) == 90.0 and nav_angle(math.pi / 2) == 0.0
+
+
+def test_pushed_pose_and_speed_are_what_sumo_reports(tmp_path, paper_curved_path):
+    net = paper_curved_path.parent / "curved.net.xml"
+    routes = tmp_path / "r.rou.xml"
+    write_routes(routes, VehicleType(), {"main": ("lead_in", "road", "exit")}, [("v", "main", 0.0, 13.4)])
+    with SumoSession(net, routes, 0.1, 7, tripinfo=tmp_path / "ti.xml") as sumo:
+        sumo.step()
+        assert "v" in sumo.vehicle_ids()
+        rng = np.random.default_rng(0)
+        for k in range(40):
+            s = 20.0 + 9.0 * k  # along the arc [m]
+            lat = rng.uniform(-0.6, 0.6)
+            dpsi = rng.uniform(-0.1, 0.1)
+            th = s / R
+            cx, cy = R * math.sin(th), R * (1 - math.cos(th))
+            nx, ny = -math.sin(th), math.cos(th)
+            x, y, psi = cx + lat * nx, cy + lat * ny, th + dpsi
+            speed = rng.uniform(2.0, 19.0)
+            sumo.push_pose("v", x, y, psi, speed)
+            sumo.step()
+            xs, ys, psis = sumo.front_pose("v")
+            assert xs == pytest.approx(x, abs=1e-3) and ys == pytest.approx(y, abs=1e-3)
+            assert psis == pytest.approx(psi, abs=1e-4)
+            assert sumo.speed("v") == pytest.approx(speed, abs=1e-6)
+            assert sumo.collisions() == []
+        # handed back, SUMO drives it to the end of its route
+        sumo.release("v")
+        for _ in range(400):
+            sumo.step()
+            if sumo.pending() == 0:
+                break
+        assert sumo.pending() == 0
+
+
+def test_route_lanes_include_internal_lanes(tmp_path, paper_curved_path):
+    net = paper_curved_path.parent / "curved.net.xml"
+    routes = tmp_path / "r.rou.xml"
+    write_routes(routes, VehicleType(), {"main": ("lead_in", "road", "exit")}, [])
+    with SumoSession(net, routes, 0.1, 1) as sumo:
+        lanes = [lane for lane, _, _ in sumo.route_lanes(("lead_in", "road", "exit"))]
+    assert lanes[0] == "lead_in_0" and lanes[-1] == "exit_0"
+    assert "road_0" in lanes and any(lane.startswith(":") for lane in lanes)
+
+
+def test_one_session_per_process(tmp_path, paper_curved_path):
+    from nrtraffic.sumo.adapter import SumoError
+
+    net = paper_curved_path.parent / "curved.net.xml"
+    routes = tmp_path / "r.rou.xml"
+    write_routes(routes, VehicleType(), {"main": ("lead_in", "road", "exit")}, [])
+    with SumoSession(net, routes, 0.1, 1):
+        with pytest.raises(SumoError, match="already running"):
+            SumoSession(net, routes, 0.1, 1).start()
