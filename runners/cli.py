@@ -30,6 +30,12 @@ def _add_paper(sub) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+def _add_bench(sub) -> None:
+    p = sub.add_parser("bench", help="run the benchmarks and print their table",
+                       description="Benchmark the compiled kernels and whole runs (ratios measured in one run).")
+    p.add_argument("--write", type=Path, default=None, metavar="FILE", help="also write the table to FILE (markdown)")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="nrtraffic",
@@ -39,6 +45,7 @@ def main(argv: list[str] | None = None) -> int:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_run(sub)
     _add_paper(sub)
+    _add_bench(sub)
     args = parser.parse_args(argv)
     from nrtraffic.engine import RunFailed
     from nrtraffic.scenario import ScenarioError
@@ -50,6 +57,10 @@ def main(argv: list[str] | None = None) -> int:
             from runners import paper
 
             return paper.main(args)
+        if args.command == "bench":
+            from runners import bench
+
+            return bench.main(args)
     except ScenarioError as exc:
         print(f"nrtraffic: scenario error: {exc}", file=sys.stderr)
         return 2
