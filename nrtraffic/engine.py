@@ -1,11 +1,13 @@
-"""The co-simulation loop: SUMO + coordinator + profiles + NR-flow tracking + plant.
+"""The co-simulation loop: SUMO + coordinator + profiles + NR-flow tracking + barriers + plant.
 
-Per SUMO step (``sumo.step_length_s``): vehicles SUMO inserted drive at the entry speed until their
-centre of gravity crosses the control-zone entry; then they are admitted (coordinator -> merge time
--> energy-optimal profile -> reference on their lane path), advanced through the plant sub-steps by
-the compiled kernel, and their poses pushed to SUMO. After the merging zone they are handed back to
-SUMO. The loop composes the pieces; the maths lives in ``vehicle``, ``control``, ``planning`` and
-``geometry``.
+Per SUMO step (``sumo.step_length_s``), at time ``t`` with SUMO and the embedded models in step:
+vehicles SUMO inserted drive at their entry speed until their centre of gravity crosses the
+control-zone entry; then they are admitted (coordinator -> merge time -> energy-optimal profile ->
+reference on their lane path). The leader of every controlled vehicle on its path is found and its
+state handed to the kernel; the state at ``t`` is logged; the compiled kernel advances every
+controlled vehicle to ``t + dt`` through the plant sub-steps; the poses are pushed to SUMO, and
+vehicles past the merging zone are handed back to SUMO; then SUMO steps. The loop composes the
+pieces; the maths lives in ``vehicle``, ``control``, ``planning`` and ``geometry``.
 """
 
 from __future__ import annotations
@@ -19,8 +21,7 @@ import numpy as np
 import pandas as pd
 
 from nrtraffic import __version__, metrics
-from nrtraffic.control.batch import (ACC_ENERGY, ACC_FUEL, ACC_MAX_ABS_A, ACC_MAX_ERR, ACC_MAX_ERR_STEADY,
-                                     ACC_MAX_ERR_TRANSIENT, ACC_MAX_LAT, N_ACC, advance)
+from nrtraffic.control import batch as kb
 from nrtraffic.demand import shifted_exponential_arrivals
 from nrtraffic.geometry import LanePath
 from nrtraffic.planning.coordinator import Coordinator, ScheduleInfeasible
@@ -29,8 +30,8 @@ from nrtraffic.scenario import Scenario
 from nrtraffic.sumo.adapter import SumoSession, VehicleType, sumo_version, write_routes
 
 N_PROFILE_SEG = 5  # packed profile segments (at most 3 arcs + cruise, padded)
-STEADY_AFTER_S = 3.0
-PATH_SPACING_M = 0.25  # sampling of the smoothed lane paths [m]  # DESIGN.md: steady-state tracking error counts after 3 s under control
+STEADY_AFTER_S = 3.0  # DESIGN.md: steady-state tracking error counts after 3 s under control
+PATH_SPACING_M = 0.25  # sampling of the smoothed lane paths [m]
 
 
 class RunFailed(RuntimeError):
@@ -48,7 +49,7 @@ class ApproachPath:
     name: str
     route: tuple[str, ...]
     path: LanePath
-    lane_offset: dict  # lane id -> (s at lane start, shape length / SUMO length)
+    lane_offset: dict  # lane id -> (s at lane start, path length / SUMO length)
     s_control: float
     s_merge: float
     s_exit: float
@@ -63,7 +64,10 @@ class VehicleRecord:
     vehicle_id: str
     approach: str
     t_depart: float
-    status: str = "waiting"  # waiting -> approaching -> controlled -> released | lost
+    controlled: bool = True
+    heading_offset: float = 0.0
+    speed_profile: tuple = ()
+    status: str = "waiting"  # waiting -> approaching -> controlled -> released | lost; "sumo" if not controlled
     t_enter: float = math.nan
     v_enter: float = math.nan
     s_enter: float = math.nan
@@ -75,9 +79,8 @@ class VehicleRecord:
     relation: str = ""
     binding: str = ""
     profile_kind: str = ""
-    acc: np.ndarray = field(default_factory=lambda: np.zeros(N_ACC))
+    acc: np.ndarray = field(default_factory=lambda: kb.new_acc(1)[0])
     min_gap: float = math.inf
-    min_center: float = math.inf
     s_last: float = math.nan
 
 
@@ -87,9 +90,9 @@ class Engine:
     Parameters
     ----------
     scenario : validated scenario.
+    workdir : where SUMO's inputs (``sumo/``) and outputs are written.
     seed : random seed (arrivals and SUMO's ``--seed``); default the scenario's.
     duration_s : simulated time [s]; default the scenario's (0: until every vehicle has left).
-    workdir : where SUMO's inputs (``sumo/``) and outputs are written.
     trajectories : optional streaming writer for per-step vehicle rows.
     progress : show a progress bar.
     """
@@ -103,27 +106,54 @@ class Engine:
         self.traj = trajectories
         self.progress = progress
         self.params = scenario.vehicle.params()
-        c = scenario.controller
+        c, b = scenario.controller, scenario.barriers
         self.plant_p = self.params.as_array()
         self.pred_p = self.params.with_mass_factor(c.predictor_mass_factor).as_array()
         self.u_lo = np.array([c.a_min_mps2, -c.steer_max_rad])
         self.u_hi = np.array([c.a_max_mps2, c.steer_max_rad])
         self.n_sub = int(round(scenario.sumo.step_length_s / c.plant_step_s))
+        cfg = np.zeros(kb.N_CFG)
+        cfg[kb.CFG_H] = c.plant_step_s
+        cfg[kb.CFG_HORIZON] = c.horizon_s
+        cfg[kb.CFG_DT_PRED] = c.predictor_step_s
+        cfg[kb.CFG_ALPHA] = c.alpha
+        cfg[kb.CFG_DAMPING] = c.damping
+        cfg[kb.CFG_STEADY_AFTER] = STEADY_AFTER_S
+        cfg[kb.CFG_CBF_LONG] = float(b.longitudinal)
+        cfg[kb.CFG_CBF_LAT] = float(b.lateral)
+        cfg[kb.CFG_D0] = b.min_gap_m + self.params.length  # centre distance, same vehicle type
+        cfg[kb.CFG_A_BAR] = b.max_braking_mps2
+        cfg[kb.CFG_LONG_GAIN] = b.longitudinal_gain
+        cfg[kb.CFG_ROOT_C] = b.root_smoothing_mps
+        cfg[kb.CFG_Y_MAX] = b.max_lateral_dev_m
+        cfg[kb.CFG_K_LAT] = 1.0 / (2.0 * b.max_lateral_accel_mps2)
+        cfg[kb.CFG_GAMMA] = b.lateral_gamma
+        cfg[kb.CFG_BISECT_TOL] = b.bisection_tol_rad
+        cfg[kb.CFG_ANTI_WINDUP] = float(b.anti_windup)
+        cfg[kb.CFG_QP_MODE] = 0.0 if b.qp_solver == "closed_form" else 1.0
+        if b.qp_solver != "closed_form":
+            kb.QP_SOLVER[0] = b.qp_solver
+        self.cfg = cfg
         self.records: dict[str, VehicleRecord] = {}
         self.collision_pairs: set[tuple[str, str]] = set()
         self.geometric_collisions: set[tuple[str, str]] = set()
+        self.t = 0.0
 
     # ------------------------------------------------------------------ set-up
-    def _demand(self) -> list[tuple[str, str, float, float]]:
+    def _demand(self) -> list[tuple]:
         d = self.sc.demand
         rng = np.random.default_rng(self.seed)
-        end = d.end_s if d.end_s > 0 else (self.duration if self.duration > 0 else math.inf)
-        if d.max_vehicles == 0 and not math.isfinite(end):
-            raise ValueError("demand needs demand.max_vehicles, demand.end_s or scenario.duration_s")
         veh = []
-        for a in self.sc.approaches:
-            times = shifted_exponential_arrivals(rng, d.begin_s, end, d.mean_headway_s, d.min_headway_s, d.max_vehicles)
-            veh += [(f"{a.name}.{k}", a.name, float(t), d.entry_speed_mps) for k, t in enumerate(times)]
+        if d.mean_headway_s > 0:
+            end = d.end_s if d.end_s > 0 else (self.duration if self.duration > 0 else math.inf)
+            if d.max_vehicles == 0 and not math.isfinite(end):
+                raise ValueError("random demand needs demand.max_vehicles, demand.end_s or scenario.duration_s")
+            for a in self.sc.approaches:
+                times = shifted_exponential_arrivals(rng, d.begin_s, end, d.mean_headway_s, d.min_headway_s,
+                                                     d.max_vehicles)
+                veh += [(f"{a.name}.{k}", a.name, float(t), d.entry_speed_mps, -1.0) for k, t in enumerate(times)]
+        for v in self.sc.vehicles:
+            veh.append((v.id, v.approach, v.depart_s, v.depart_speed_mps, v.depart_pos_m))
         veh.sort(key=lambda v: v[2])
         return veh
 
@@ -141,11 +171,8 @@ class Engine:
             lane_m = f"{a.merge_entry_edge}_0"
             s_m = offsets[lane_m][0] + a.merge_entry_pos_m * offsets[lane_m][1]
             s_c = s_m - z.control_zone_m
-            if s_c < self.params.length:
-                raise ValueError(
-                    f"approach {a.name}: the control zone starts {s_c:.1f} m into the route; vehicles need "
-                    f"room to be inserted before it (lengthen the route or move merge_entry_pos_m)"
-                )
+            if s_c < -1e-6:
+                raise ValueError(f"approach {a.name}: the control zone would start before the route does")
             if s_m + z.merging_zone_m > path.length:
                 raise ValueError(f"approach {a.name}: the merging zone runs past the end of the route")
             out[a.name] = ApproachPath(a.name, a.route, path, offsets, s_c, s_m, s_m + z.merging_zone_m)
@@ -160,23 +187,29 @@ class Engine:
         sdir.mkdir(exist_ok=True)
         p = self.params
         vtype = VehicleType(length_m=p.length, width_m=p.width, max_speed_mps=max(self.sc.planning.v_max_mps, 1.0))
-        demand = self._demand()
-        for vid, appr, t, _ in demand:
-            self.records[vid] = VehicleRecord(vid, appr, t)
-        routes = sdir / "routes.rou.xml"
-        write_routes(routes, vtype, {a.name: a.route for a in self.sc.approaches}, demand)
-        o = self.sc.outputs
-        self.sumo = SumoSession(
-            self.sc.network_path, routes, self.sc.sumo.step_length_s, self.seed, self.sc.sumo.lateral_resolution_m,
-            tripinfo=self.workdir / "tripinfo.xml" if o.sumo_tripinfo else None,
-            collisions=self.workdir / "collisions.xml" if o.sumo_collisions else None,
-            extra_args=self.sc.sumo.extra_args,
-        )
-        self.coord = Coordinator(self.sc.coordinator, self.sc.planning)
         wall0 = time.perf_counter()
         error = None
-        self.t = 0.0
         try:
+            demand = self._demand()
+            listed = {v.id: v for v in self.sc.vehicles}
+            for vid, appr, t, _, _ in demand:
+                lv = listed.get(vid)
+                self.records[vid] = VehicleRecord(
+                    vid, appr, t, controlled=lv.controlled if lv else True,
+                    heading_offset=lv.entry_heading_offset_rad if lv else 0.0,
+                    speed_profile=lv.speed_profile if lv else ())
+            routes = sdir / "routes.rou.xml"
+            write_routes(routes, vtype, {a.name: a.route for a in self.sc.approaches}, demand)
+            o = self.sc.outputs
+            self.sumo = SumoSession(
+                self.sc.network_path, routes, self.sc.sumo.step_length_s, self.seed,
+                self.sc.sumo.lateral_resolution_m,
+                tripinfo=self.workdir / "tripinfo.xml" if o.sumo_tripinfo else None,
+                collisions=self.workdir / "collisions.xml" if o.sumo_collisions else None,
+                fcd=self.workdir / "fcd.xml" if o.sumo_fcd else None,
+                extra_args=self.sc.sumo.extra_args,
+            )
+            self.coord = Coordinator(self.sc.coordinator, self.sc.planning)
             with self.sumo:
                 self.paths = self._paths(self.sumo)
                 self._loop()
@@ -197,13 +230,15 @@ class Engine:
         dt = sc.sumo.step_length_s
         log_every = max(1, int(round(sc.outputs.trajectory_interval_s / dt)))
         self.batch_ids: list[str] = []
+        self._pack_paths()
         self._alloc(0)
         approaching: list[str] = []
+        scripted: list[str] = []
         step = 0
         total = self.duration if self.duration > 0 else None
         fmt = ("{l_bar}{bar}| {n:.0f}/{total:.0f} sim s [{elapsed}<{remaining}]" if total
                else "{desc}: {n:.0f} sim s [{elapsed}, {rate_fmt}]")
-        bar = tqdm(total=total, desc=self.sc.general.name, unit="sim s", disable=not self.progress, leave=False,
+        bar = tqdm(total=total, desc=sc.general.name, unit="sim s", disable=not self.progress, leave=False,
                    bar_format=fmt)
         try:
             while True:
@@ -214,18 +249,25 @@ class Engine:
                     break
                 for vid in self.sumo.departed():
                     rec = self.records.get(vid)
-                    if rec is not None:
+                    if rec is None:
+                        continue
+                    if rec.controlled:
                         rec.status = "approaching"
-                        self.sumo.hold_speed(vid, sc.demand.entry_speed_mps)
+                        self.sumo.hold_speed(vid, self.sumo.speed(vid))
                         approaching.append(vid)
+                    else:
+                        rec.status = "sumo"
+                        if rec.speed_profile:
+                            scripted.append(vid)
                 for vid in list(approaching):
                     if self._try_admit(vid):
                         approaching.remove(vid)
-                self._advance(dt)
-                self._gaps()
+                self._leaders()
                 if step % log_every == 0:
                     self._log()
+                self._advance(dt)
                 self._push_and_release()
+                self._script(scripted, self.t + dt)
                 self.sumo.step()
                 for a, b, _ in self.sumo.collisions():
                     self.collision_pairs.add(tuple(sorted((a, b))))
@@ -236,6 +278,15 @@ class Engine:
             bar.close()
 
     # ------------------------------------------------------------------ batch arrays
+    _BATCH = ("X", "U", "prof", "t_enter", "s_enter", "path_id", "hint", "acc", "out", "lead_idx", "lead_ext", "gap")
+
+    def _pack_paths(self) -> None:
+        self.path_names = list(self.paths)
+        xy = [self.paths[k].path.xy for k in self.path_names]
+        self.path_off = np.concatenate([[0], np.cumsum([len(a) for a in xy])]).astype(np.int64)
+        self.path_xy = np.ascontiguousarray(np.concatenate(xy))
+        self.path_s = np.ascontiguousarray(np.concatenate([self.paths[k].path.s for k in self.path_names]))
+
     def _alloc(self, n: int) -> None:
         self.X = np.zeros((n, 6))
         self.U = np.zeros((n, 2))
@@ -244,42 +295,31 @@ class Engine:
         self.s_enter = np.zeros(n)
         self.path_id = np.zeros(n, dtype=np.int64)
         self.hint = np.zeros(n, dtype=np.int64)
-        self.acc = np.zeros((n, N_ACC))
-        self.out_s = np.zeros(n)
-        self.out_lat = np.zeros(n)
-        self.out_ref = np.zeros((n, 2))
-        self.out_err = np.zeros(n)
+        self.acc = kb.new_acc(n)
+        self.out = np.full((n, kb.N_OUT), np.nan)
+        self.lead_idx = np.full(n, kb.NO_LEADER, dtype=np.int64)
+        self.lead_ext = np.zeros((n, 6))
         self.gap = np.full(n, np.nan)
-        self.center = np.full(n, np.nan)
-        names = list(self.paths) if hasattr(self, "paths") else []
-        self.path_names = names
-        if names:
-            xy = [self.paths[k].path.xy for k in names]
-            self.path_off = np.concatenate([[0], np.cumsum([len(a) for a in xy])]).astype(np.int64)
-            self.path_xy = np.ascontiguousarray(np.concatenate(xy))
-            self.path_s = np.ascontiguousarray(np.concatenate([self.paths[k].path.s for k in names]))
 
-    def _append(self, vid, x0, prof, t0, s0, pid, hint) -> None:
+    def _append(self, vid: str, x0, prof, t0: float, s0: float, lat0: float, ref0, pid: int, hint: int) -> None:
         self.batch_ids.append(vid)
-        self.X = np.vstack([self.X, x0[None]])
-        self.U = np.vstack([self.U, np.zeros((1, 2))])
-        self.prof = np.concatenate([self.prof, prof[None]])
-        self.t_enter = np.append(self.t_enter, t0)
-        self.s_enter = np.append(self.s_enter, s0)
-        self.path_id = np.append(self.path_id, pid)
-        self.hint = np.append(self.hint, hint)
-        self.acc = np.vstack([self.acc, np.zeros((1, N_ACC))])
-        for name in ("out_s", "out_lat", "out_err"):
-            setattr(self, name, np.append(getattr(self, name), 0.0))
-        self.out_s[-1] = s0
-        self.out_ref = np.vstack([self.out_ref, np.zeros((1, 2))])
-        self.gap = np.append(self.gap, np.nan)
-        self.center = np.append(self.center, np.nan)
+        row = {
+            "X": x0[None], "U": np.zeros((1, 2)), "prof": prof[None], "t_enter": [t0], "s_enter": [s0],
+            "path_id": [pid], "hint": [hint], "acc": kb.new_acc(1), "out": np.full((1, kb.N_OUT), np.nan),
+            "lead_idx": [kb.NO_LEADER], "lead_ext": np.zeros((1, 6)), "gap": [np.nan],
+        }
+        for name in self._BATCH:
+            cur = getattr(self, name)
+            setattr(self, name, np.ascontiguousarray(np.concatenate([cur, np.asarray(row[name], dtype=cur.dtype)])))
+        o = self.out[-1]
+        o[kb.OUT_S], o[kb.OUT_LAT] = s0, lat0
+        o[kb.OUT_REFX], o[kb.OUT_REFY] = ref0
+        o[kb.OUT_ERR] = math.hypot(x0[0] - ref0[0], x0[1] - ref0[1])
+        o[kb.OUT_A], o[kb.OUT_D] = 0.0, 0.0
 
     def _remove(self, keep: np.ndarray) -> None:
         self.batch_ids = [v for v, k in zip(self.batch_ids, keep) if k]
-        for name in ("X", "U", "prof", "t_enter", "s_enter", "path_id", "hint", "acc", "out_s", "out_lat", "out_ref",
-                     "out_err", "gap", "center"):
+        for name in self._BATCH:
             setattr(self, name, np.ascontiguousarray(getattr(self, name)[keep]))
 
     # ------------------------------------------------------------------ steps
@@ -290,13 +330,13 @@ class Engine:
         if lane not in ap.lane_offset:
             return False
         s_cg = ap.s_of(lane, pos) - self.params.cg_to_front
-        if s_cg < ap.s_control:
+        if s_cg < ap.s_control - 1e-6:
             return False
         xf, yf, psi = self.sumo.front_pose(vid)
         v = self.sumo.speed(vid)
         cg = self.params.cg_to_front
-        x0 = np.array([xf - cg * math.cos(psi), yf - cg * math.sin(psi), v, 0.0, psi, 0.0])
-        s_proj, _ = ap.path.project(x0[:2])
+        x0 = np.array([xf - cg * math.cos(psi), yf - cg * math.sin(psi), v, 0.0, psi + rec.heading_offset, 0.0])
+        s_proj, lat0 = ap.path.project(x0[:2])
         D = ap.s_merge - s_proj
         try:
             asg = self.coord.schedule(vid, rec.approach, self.t, v, D)
@@ -310,45 +350,26 @@ class Engine:
         rec.profile_kind = asg.profile.kind
         rec.s_last = s_proj
         hint = int(np.clip(np.searchsorted(ap.path.s, s_proj) - 1, 0, len(ap.path.s) - 2))
-        self._append(vid, x0, asg.profile.packed(N_PROFILE_SEG), self.t, s_proj, self.path_names.index(rec.approach), hint)
+        self._append(vid, x0, asg.profile.packed(N_PROFILE_SEG), self.t, s_proj, lat0, ap.path.xy_at(s_proj),
+                     self.path_names.index(rec.approach), hint)
         return True
 
-    def _advance(self, dt: float) -> None:
-        if not self.batch_ids:
-            return
-        c = self.sc.controller
-        advance(self.X, self.U, self.t, self.n_sub, c.plant_step_s, self.plant_p, self.pred_p, c.horizon_s,
-                c.predictor_step_s, c.alpha, c.damping, self.u_lo, self.u_hi, self.prof, self.t_enter, self.s_enter,
-                self.path_id, self.path_off, self.path_xy, self.path_s, self.hint, STEADY_AFTER_S, self.acc,
-                self.out_s, self.out_lat, self.out_ref, self.out_err)
-        if not np.all(np.isfinite(self.X)):
-            bad = [v for v, ok in zip(self.batch_ids, np.isfinite(self.X).all(axis=1)) if not ok]
-            raise FloatingPointError(f"vehicle state became non-finite at t={self.t:.2f} s: {', '.join(bad)}")
-        t1 = self.t + dt
-        for i, vid in enumerate(self.batch_ids):
-            rec = self.records[vid]
-            ap = self.paths[rec.approach]
-            s_prev, s_new = rec.s_last, self.out_s[i]
-            if math.isnan(rec.t_merge_actual) and s_new >= ap.s_merge > s_prev:
-                rec.t_merge_actual = self.t + dt * (ap.s_merge - s_prev) / (s_new - s_prev)
-            if math.isnan(rec.t_exit) and s_new >= ap.s_exit > s_prev:
-                rec.t_exit = self.t + dt * (ap.s_exit - s_prev) / (s_new - s_prev)
-            rec.s_last = s_new
-        self.t_next = t1
-
-    def _gaps(self) -> None:
-        """Centre distance and bumper gap [m] of each controlled vehicle to the vehicle ahead on its
-        path (controlled or SUMO-driven)."""
-        if not self.batch_ids:
+    def _leaders(self) -> None:
+        """For each controlled vehicle, the vehicle ahead on its path (controlled or SUMO-driven):
+        its batch index or its state, and the bumper gap [m] to it, all at time ``t``."""
+        n = len(self.batch_ids)
+        if n == 0:
             return
         p = self.params
-        pos = {}  # approach -> list of (s_cg, x, y, vid)
-        ctrl = set(self.batch_ids)
+        self.lead_idx[:] = kb.NO_LEADER
+        self.gap[:] = np.nan
+        pos: dict[str, list] = {}
+        index = {v: i for i, v in enumerate(self.batch_ids)}
         for i, vid in enumerate(self.batch_ids):
-            rec = self.records[vid]
-            pos.setdefault(rec.approach, []).append((self.out_s[i], self.X[i, 0], self.X[i, 1], vid))
+            pos.setdefault(self.records[vid].approach, []).append((self.out[i, kb.OUT_S], vid))
+        ext = {}
         for vid in self.sumo.vehicle_ids():
-            if vid in ctrl:
+            if vid in index:
                 continue
             rec = self.records.get(vid)
             if rec is None or rec.approach not in pos:
@@ -358,47 +379,81 @@ class Engine:
             if lane not in ap.lane_offset:
                 continue
             xf, yf, psi = self.sumo.front_pose(vid)
-            pos[rec.approach].append((ap.s_of(lane, lp) - p.cg_to_front, xf - p.cg_to_front * math.cos(psi),
-                                      yf - p.cg_to_front * math.sin(psi), vid))
-        index = {v: i for i, v in enumerate(self.batch_ids)}
+            v, a = self.sumo.speed(vid), self.sumo.acceleration(vid)
+            c, s = math.cos(psi), math.sin(psi)
+            ext[vid] = (xf - p.cg_to_front * c, yf - p.cg_to_front * s, v * c, v * s, a * c, a * s)
+            pos[rec.approach].append((ap.s_of(lane, lp) - p.cg_to_front, vid))
         for lst in pos.values():
             lst.sort()
             for k in range(len(lst) - 1):
-                s, x, y, vid = lst[k]
+                s_f, vid = lst[k]
                 if vid not in index:
                     continue
-                s2, x2, y2, vid2 = lst[k + 1]
-                gap = s2 - s - p.length  # same vehicle type: rear of leader minus front of follower
-                centre = math.hypot(x2 - x, y2 - y)
+                s_l, lead = lst[k + 1]
                 i = index[vid]
-                self.gap[i], self.center[i] = gap, centre
+                if lead in index:
+                    self.lead_idx[i] = index[lead]
+                else:
+                    self.lead_idx[i] = kb.EXTERNAL_LEADER
+                    self.lead_ext[i] = ext[lead]
+                gap = s_l - s_f - p.length  # rear of the leader minus front of the follower (same type)
+                self.gap[i] = gap
                 rec = self.records[vid]
                 rec.min_gap = min(rec.min_gap, gap)
-                rec.min_center = min(rec.min_center, centre)
                 if gap < 0.0:
-                    self.geometric_collisions.add(tuple(sorted((vid, vid2))))
+                    self.geometric_collisions.add(tuple(sorted((vid, lead))))
+
+    def _advance(self, dt: float) -> None:
+        if not self.batch_ids:
+            return
+        kb.advance(self.X, self.U, self.t, self.n_sub, self.cfg, self.plant_p, self.pred_p, self.u_lo, self.u_hi,
+                   self.prof, self.t_enter, self.s_enter, self.path_id, self.path_off, self.path_xy, self.path_s,
+                   self.hint, self.lead_idx, self.lead_ext, self.acc, self.out)
+        if not np.all(np.isfinite(self.X)):
+            bad = [v for v, ok in zip(self.batch_ids, np.isfinite(self.X).all(axis=1)) if not ok]
+            raise FloatingPointError(f"vehicle state became non-finite at t={self.t:.2f} s: {', '.join(bad)}")
+        for i, vid in enumerate(self.batch_ids):
+            rec = self.records[vid]
+            ap = self.paths[rec.approach]
+            s_prev, s_new = rec.s_last, self.out[i, kb.OUT_S]
+            if math.isnan(rec.t_merge_actual) and s_new >= ap.s_merge > s_prev:
+                rec.t_merge_actual = self.t + dt * (ap.s_merge - s_prev) / (s_new - s_prev)
+            if math.isnan(rec.t_exit) and s_new >= ap.s_exit > s_prev:
+                rec.t_exit = self.t + dt * (ap.s_exit - s_prev) / (s_new - s_prev)
+            rec.s_last = s_new
 
     def _log(self) -> None:
         if self.traj is None or not self.batch_ids:
             return
-        X, U = self.X, self.U
-        t1 = getattr(self, "t_next", self.t)
-        ref_s = np.array([self.s_enter[i] + 0.0 for i in range(len(self.batch_ids))])
-        for i, vid in enumerate(self.batch_ids):
+        X, U, o = self.X, self.U, self.out
+        ref_s = np.empty(len(self.batch_ids))
+        for i in range(len(self.batch_ids)):
             seg = self.prof[i]
-            tau = t1 - self.t_enter[i]
-            k = int(np.searchsorted(seg[:, 0], tau, side="right") - 1)
-            k = max(k, 0)
+            tau = self.t - self.t_enter[i]
+            k = max(int(np.searchsorted(seg[:, 0], tau, side="right") - 1), 0)
             d = tau - seg[k, 0]
-            ref_s[i] += seg[k, 1] + seg[k, 2] * d + seg[k, 3] * d * d / 2 + seg[k, 4] * d**3 / 6
+            ref_s[i] = self.s_enter[i] + seg[k, 1] + seg[k, 2] * d + seg[k, 3] * d * d / 2 + seg[k, 4] * d**3 / 6
         s_c = np.array([self.paths[self.records[v].approach].s_control for v in self.batch_ids])
         self.traj.append(
-            t=np.full(len(self.batch_ids), t1), vehicle_id=list(self.batch_ids), s_m=self.out_s - s_c,
-            x=X[:, 0], y=X[:, 1], v_l=X[:, 2], v_n=X[:, 3], psi=X[:, 4], psi_dot=X[:, 5], a_cmd=U[:, 0],
-            delta_cmd=U[:, 1], ref_x=self.out_ref[:, 0], ref_y=self.out_ref[:, 1], ref_s_m=ref_s - s_c,
-            tracking_error_m=self.out_err, lateral_dev_m=self.out_lat, center_distance_m=self.center,
-            bumper_gap_m=self.gap,
+            t=np.full(len(self.batch_ids), self.t), vehicle_id=list(self.batch_ids), s_m=o[:, kb.OUT_S] - s_c,
+            x=X[:, 0], y=X[:, 1], v_l=X[:, 2], v_n=X[:, 3], psi=X[:, 4], psi_dot=X[:, 5], a_cmd=o[:, kb.OUT_A],
+            delta_cmd=o[:, kb.OUT_D], a_track=U[:, 0], delta_track=U[:, 1], ref_x=o[:, kb.OUT_REFX],
+            ref_y=o[:, kb.OUT_REFY], ref_s_m=ref_s - s_c, tracking_error_m=o[:, kb.OUT_ERR],
+            lateral_dev_m=o[:, kb.OUT_LAT],
+            center_distance_m=np.where(self.lead_idx != kb.NO_LEADER, self._centre_now(), np.nan),
+            bumper_gap_m=self.gap, cbf_long_active=o[:, kb.OUT_LONG_FRAC], cbf_lat_active=o[:, kb.OUT_LAT_FRAC],
+            h_long=o[:, kb.OUT_H_LONG], h_lat=o[:, kb.OUT_H_LAT],
         )
+
+    def _centre_now(self) -> np.ndarray:
+        out = np.full(len(self.batch_ids), np.nan)
+        for i in range(len(self.batch_ids)):
+            j = self.lead_idx[i]
+            if j >= 0:
+                out[i] = math.hypot(self.X[j, 0] - self.X[i, 0], self.X[j, 1] - self.X[i, 1])
+            elif j == kb.EXTERNAL_LEADER:
+                out[i] = math.hypot(self.lead_ext[i, 0] - self.X[i, 0], self.lead_ext[i, 1] - self.X[i, 1])
+        return out
 
     def _push_and_release(self) -> None:
         if not self.batch_ids:
@@ -414,7 +469,7 @@ class Engine:
                 continue
             x, y, vl, vn, psi = self.X[i, :5]
             self.sumo.push_pose(vid, x + cg * math.cos(psi), y + cg * math.sin(psi), psi, math.hypot(vl, vn))
-            if self.out_s[i] >= self.paths[rec.approach].s_exit:
+            if self.out[i, kb.OUT_S] >= self.paths[rec.approach].s_exit:
                 self.sumo.release(vid)
                 rec.status = "released"
                 keep[i] = False
@@ -424,41 +479,60 @@ class Engine:
         if not keep.all():
             self._remove(keep)
 
+    def _script(self, scripted: list[str], t_next: float) -> None:
+        """SUMO-driven vehicles with a speed profile: the desired speed for the next step."""
+        if not scripted:
+            return
+        live = set(self.sumo.vehicle_ids())
+        for vid in list(scripted):
+            if vid not in live:
+                scripted.remove(vid)
+                continue
+            prof = np.asarray(self.records[vid].speed_profile, dtype=float)
+            self.sumo.hold_speed(vid, float(np.interp(t_next, prof[:, 0], prof[:, 1])))
+
     # ------------------------------------------------------------------ results
     def _result(self, wall: float, error: BaseException | None) -> RunResult:
         for i, vid in enumerate(getattr(self, "batch_ids", [])):
             self.records[vid].acc = self.acc[i].copy()
         rows = []
+        paths = getattr(self, "paths", {})
         for rec in self.records.values():
-            if rec.status == "waiting":
+            if rec.status == "waiting" or not rec.controlled:
                 continue
-            ap = getattr(self, "paths", {}).get(rec.approach)
+            ap = paths.get(rec.approach)
             delay = math.nan
             if ap is not None and not math.isnan(rec.t_exit):
                 delay = float(metrics.free_flow_delay(rec.t_enter, rec.t_exit, ap.s_exit - rec.s_enter, rec.v_enter))
             admitted = not math.isnan(rec.t_enter)
-            a = rec.acc
+            a = rec.acc if admitted else np.full(kb.N_ACC, np.nan)
+            steps = a[kb.ACC_STEPS]
+
+            def fin(v):
+                return v if np.isfinite(v) else math.nan
+
             rows.append({
                 "vehicle_id": rec.vehicle_id, "approach": rec.approach, "movement": "through",
                 "t_enter_s": rec.t_enter, "v_enter_mps": rec.v_enter, "t_merge_planned_s": rec.t_merge_planned,
                 "t_merge_actual_s": rec.t_merge_actual, "t_exit_s": rec.t_exit, "delay_s": delay,
-                "max_tracking_error_m": a[ACC_MAX_ERR] if admitted else math.nan,
-                "steady_tracking_error_m": a[ACC_MAX_ERR_STEADY] if admitted else math.nan,
-                "transient_tracking_error_m": a[ACC_MAX_ERR_TRANSIENT] if admitted else math.nan,
-                "max_lateral_dev_m": a[ACC_MAX_LAT] if admitted else math.nan,
-                "min_bumper_gap_m": rec.min_gap if math.isfinite(rec.min_gap) else math.nan,
-                "energy_u2": a[ACC_ENERGY] if admitted else math.nan,
-                "fuel_ml": a[ACC_FUEL] if admitted else math.nan,
+                "max_tracking_error_m": a[kb.ACC_MAX_ERR], "steady_tracking_error_m": a[kb.ACC_MAX_ERR_STEADY],
+                "transient_tracking_error_m": a[kb.ACC_MAX_ERR_TRANSIENT], "max_lateral_dev_m": a[kb.ACC_MAX_LAT],
+                "min_bumper_gap_m": fin(rec.min_gap), "energy_u2": a[kb.ACC_ENERGY], "fuel_ml": a[kb.ACC_FUEL],
                 "predecessor": rec.predecessor or "", "relation": rec.relation, "binding": rec.binding,
                 "profile": rec.profile_kind, "v_merge_planned_mps": rec.v_merge_planned,
-                "min_center_distance_m": rec.min_center if math.isfinite(rec.min_center) else math.nan,
-                "max_abs_accel_mps2": a[ACC_MAX_ABS_A] if admitted else math.nan,
+                "min_center_distance_m": fin(a[kb.ACC_MIN_CENTER]), "max_abs_accel_mps2": a[kb.ACC_MAX_ABS_A],
+                "cbf_long_active_frac": a[kb.ACC_LONG_ACTIVE] / steps if steps else math.nan,
+                "cbf_lat_active_frac": a[kb.ACC_LAT_ACTIVE] / steps if steps else math.nan,
+                "cbf_long_fallbacks": a[kb.ACC_LONG_FALLBACK], "cbf_lat_fallbacks": a[kb.ACC_LAT_FALLBACK],
+                "min_h_long": fin(a[kb.ACC_MIN_H_LONG]), "min_h_lat": fin(a[kb.ACC_MIN_H_LAT]),
+                "plant_steps": steps,
                 "status": rec.status,
             })
         veh = pd.DataFrame(rows, columns=VEHICLE_COLUMNS)
         adm = veh[veh["t_enter_s"].notna()]
         done = veh[veh["t_exit_s"].notna()]
         sim_t = float(self.t)
+        steps = adm["plant_steps"].sum()
         summary = {
             "scenario": self.sc.general.name,
             "seed": self.seed,
@@ -467,7 +541,7 @@ class Engine:
             "sim_time_s": sim_t,
             "wall_time_s": wall,
             "real_time_factor": sim_t / wall if wall > 0 else None,
-            "vehicles_spawned": int((veh["status"] != "waiting").sum()),
+            "vehicles_spawned": int(sum(r.status != "waiting" for r in self.records.values())),
             "vehicles_admitted": int(len(adm)),
             "vehicles_completed": int(len(done)),
             "throughput_veh_h": len(done) / sim_t * 3600.0 if sim_t > 0 else None,
@@ -484,6 +558,12 @@ class Engine:
             "max_abs_accel_mps2": metrics.max_or_none(adm["max_abs_accel_mps2"]),
             "mean_energy_u2": metrics.mean_or_none(done["energy_u2"]),
             "mean_fuel_ml": metrics.mean_or_none(done["fuel_ml"]),
+            "barriers_longitudinal": bool(self.sc.barriers.longitudinal),
+            "barriers_lateral": bool(self.sc.barriers.lateral),
+            "cbf_long_active_frac": float((adm["cbf_long_active_frac"] * adm["plant_steps"]).sum() / steps) if steps else None,
+            "cbf_lat_active_frac": float((adm["cbf_lat_active_frac"] * adm["plant_steps"]).sum() / steps) if steps else None,
+            "cbf_long_fallbacks": int(adm["cbf_long_fallbacks"].sum()),
+            "cbf_lat_fallbacks": int(adm["cbf_lat_fallbacks"].sum()),
             "nrtraffic_version": __version__,
             "sumo_version": sumo_version(),
         }

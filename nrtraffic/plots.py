@@ -59,3 +59,55 @@ def per_vehicle(traj: pd.DataFrame, vehicles: pd.DataFrame, column: str, ylabel:
     ax.legend()
     ax.grid(alpha=0.3)
     return _save(fig, path)
+
+
+def cbf_figures(with_cbf: pd.DataFrame, without_cbf: pd.DataFrame, fcd: pd.DataFrame, d0: float, y_max: float,
+                out: Path, no_antiwindup: pd.DataFrame | None = None) -> list[Path]:
+    """Paper figures 5-10 of the barrier-function experiment (follower with and without barriers)."""
+    out = Path(out)
+    paths = []
+    lead = fcd[fcd["vehicle_id"] != with_cbf["vehicle_id"].iloc[0]]
+    # fig. 5: speeds
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    ax.plot(lead["t"], lead["speed"], label="car 1 (leader, SUMO)", color="tab:blue")
+    ax.plot(with_cbf["t"], with_cbf["v_l"], label="car 2 (with barriers)", color="tab:red")
+    ax.plot(without_cbf["t"], without_cbf["v_l"], label="car 2 (without)", color="tab:red", ls=":", lw=0.9)
+    ax.set(xlabel="time [s]", ylabel="speed [m/s]", title="Speeds")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    paths.append(_save(fig, out / "fig5_speeds.png"))
+    # fig. 6: distance between the vehicles
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    ax.plot(with_cbf["t"], with_cbf["center_distance_m"], label="with barriers", color="tab:red")
+    ax.plot(without_cbf["t"], without_cbf["center_distance_m"], label="without", color="tab:gray", ls=":")
+    ax.axhline(d0, color="k", ls="--", lw=0.8, label=f"d0 = {d0:.1f} m")
+    ax.set(xlabel="time [s]", ylabel="centre distance [m]", title="Distance between the vehicles")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    paths.append(_save(fig, out / "fig6_distance.png"))
+    # fig. 7: lateral deviation, both runs
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    ax.plot(without_cbf["t"], without_cbf["lateral_dev_m"], label="without barriers", color="tab:gray")
+    ax.plot(with_cbf["t"], with_cbf["lateral_dev_m"], label="with barriers", color="tab:red")
+    for y in (y_max, -y_max):
+        ax.axhline(y, color="k", ls="--", lw=0.8)
+    ax.set(xlabel="time [s]", ylabel="lateral deviation [m]", title="Deviation from the lane centre")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    paths.append(_save(fig, out / "fig7_lateral_deviation.png"))
+    extra = [("with barriers", with_cbf, "tab:red", "-")]
+    if no_antiwindup is not None:
+        extra.append(("with barriers, no anti-windup", no_antiwindup, "tab:purple", ":"))
+    for name, col, ylabel, title in [
+        ("fig8_tracking_error.png", "tracking_error_m", "tracking error [m]", "Tracking error |y - r|"),
+        ("fig9_acceleration.png", "a_cmd", "a_l [m/s$^2$]", "Longitudinal acceleration (applied)"),
+        ("fig10_steering.png", "delta_cmd", "delta_f [rad]", "Steering angle (applied)"),
+    ]:
+        fig, ax = plt.subplots(figsize=(6.4, 4.0))
+        for label, df, color, ls in extra:
+            ax.plot(df["t"], df[col], label=label, color=color, ls=ls, lw=1.0)
+        ax.set(xlabel="time [s]", ylabel=ylabel, title=title)
+        ax.legend()
+        ax.grid(alpha=0.3)
+        paths.append(_save(fig, out / name))
+    return paths

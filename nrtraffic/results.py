@@ -20,14 +20,16 @@ VEHICLE_COLUMNS = [
     "t_exit_s", "delay_s", "max_tracking_error_m", "steady_tracking_error_m", "transient_tracking_error_m",
     "max_lateral_dev_m",
     "min_bumper_gap_m", "energy_u2", "fuel_ml", "predecessor", "relation", "binding", "profile", "v_merge_planned_mps",
-    "min_center_distance_m", "max_abs_accel_mps2", "status",
+    "min_center_distance_m", "max_abs_accel_mps2", "cbf_long_active_frac", "cbf_lat_active_frac",
+    "cbf_long_fallbacks", "cbf_lat_fallbacks", "min_h_long", "min_h_lat", "plant_steps", "status",
 ]
 
 TRAJECTORY_COLUMNS = {
     "t": "float64", "vehicle_id": "string", "s_m": "float64", "x": "float64", "y": "float64", "v_l": "float64",
     "v_n": "float64", "psi": "float64", "psi_dot": "float64", "a_cmd": "float64", "delta_cmd": "float64",
-    "ref_x": "float64", "ref_y": "float64", "ref_s_m": "float64", "tracking_error_m": "float64",
+    "a_track": "float64", "delta_track": "float64", "ref_x": "float64", "ref_y": "float64", "ref_s_m": "float64", "tracking_error_m": "float64",
     "lateral_dev_m": "float64", "center_distance_m": "float64", "bumper_gap_m": "float64",
+    "cbf_long_active": "float64", "cbf_lat_active": "float64", "h_long": "float64", "h_lat": "float64",
 }
 
 
@@ -135,3 +137,19 @@ def read_run(run_dir: Path) -> RunResult:
 
 def read_trajectories(run_dir: Path) -> pd.DataFrame:
     return pd.read_parquet(Path(run_dir) / "trajectories.parquet")
+
+
+def read_fcd(path: Path) -> pd.DataFrame:
+    """SUMO's floating-car data (``fcd.xml``) as rows ``t, vehicle_id, x, y, speed, acceleration``
+    (positions of the front bumper, as SUMO reports them)."""
+    import xml.etree.ElementTree as ET
+
+    rows = []
+    for _, el in ET.iterparse(path, events=("end",)):
+        if el.tag == "timestep":
+            t = float(el.get("time"))
+            for v in el.findall("vehicle"):
+                rows.append((t, v.get("id"), float(v.get("x")), float(v.get("y")), float(v.get("speed")),
+                             float(v.get("acceleration", "nan"))))
+            el.clear()
+    return pd.DataFrame(rows, columns=["t", "vehicle_id", "x", "y", "speed", "acceleration"])

@@ -150,7 +150,7 @@ class Demand:
     """
 
     entry_speed_mps: float = 13.4
-    mean_headway_s: float = 6.0
+    mean_headway_s: float = 6.0  # 0: no random arrivals (only [[vehicles]])
     min_headway_s: float = 1.5
     max_vehicles: int = 0  # per approach; 0 = no limit
     begin_s: float = 0.0
@@ -159,10 +159,77 @@ class Demand:
     def validate(self) -> None:
         if self.entry_speed_mps <= 0:
             raise ScenarioError("demand.entry_speed_mps must be > 0")
-        if not (0 <= self.min_headway_s < self.mean_headway_s):
-            raise ScenarioError("demand needs 0 <= min_headway_s < mean_headway_s")
+        if self.mean_headway_s != 0 and not (0 <= self.min_headway_s < self.mean_headway_s):
+            raise ScenarioError("demand needs 0 <= min_headway_s < mean_headway_s (or mean_headway_s = 0)")
         if self.max_vehicles < 0:
             raise ScenarioError("demand.max_vehicles must be >= 0")
+
+
+@dataclass(frozen=True)
+class Barriers:
+    """``[barriers]``: the safety filter between tracker and plant (paper s. 3.2 and 4.2).
+
+    The longitudinal barrier keeps the centre distance to the vehicle ahead on the same path at
+    least ``d0 = min_gap_m + vehicle length`` (``min_gap_m`` is bumper to bumper: the paper's
+    ``d0 = 5 m`` between point vehicles is ``min_gap_m = 0.2`` for 4.8 m cars).
+    """
+
+    longitudinal: bool = True
+    lateral: bool = True
+    min_gap_m: float = 2.0  # bumper-to-bumper gap kept to the vehicle ahead
+    max_braking_mps2: float = 3.0  # a_bar of the barrier (k = 1 / (2 a_bar))
+    longitudinal_gain: float = 1.0  # kappa(h) = gain * h (paper: 1)
+    root_smoothing_mps: float = 0.1  # c in sqrt(2 a_bar (r - d0) + c^2) - c (0: the exact root)
+    max_lateral_dev_m: float = 0.5  # y_max (paper: 0.5 m)
+    max_lateral_accel_mps2: float = 2.0  # a_tilde (k = 1 / (2 a_tilde))
+    lateral_gamma: float = 15.0  # kappa(h) = gamma h^3 (paper: 15)
+    bisection_tol_rad: float = 1e-6
+    anti_windup: bool = True  # the tracker integrates from the applied (filtered) input
+    qp_solver: str = "closed_form"  # or a qpsolvers backend, e.g. "osqp" (same QP, slower)
+
+    def validate(self) -> None:
+        for k in ("max_braking_mps2", "longitudinal_gain", "max_lateral_dev_m", "max_lateral_accel_mps2",
+                  "lateral_gamma", "bisection_tol_rad"):
+            if getattr(self, k) <= 0:
+                raise ScenarioError(f"barriers.{k} must be > 0")
+        if self.min_gap_m < 0 or self.root_smoothing_mps < 0:
+            raise ScenarioError("barriers.min_gap_m and barriers.root_smoothing_mps must be >= 0")
+        if self.qp_solver != "closed_form":
+            import qpsolvers
+
+            if self.qp_solver not in qpsolvers.available_solvers:
+                raise ScenarioError(
+                    f"barriers.qp_solver {self.qp_solver!r} is not available; use 'closed_form' or one of "
+                    f"{', '.join(qpsolvers.available_solvers)}"
+                )
+
+
+@dataclass(frozen=True)
+class ListedVehicle:
+    """``[[vehicles]]``: a vehicle with a given departure (besides the random demand).
+
+    ``controlled = false`` leaves it to SUMO; ``speed_profile`` (pairs ``[t_s, v_mps]``, linear in
+    between) then sets its speed every step.
+    """
+
+    id: str = ""
+    approach: str = ""
+    depart_s: float = 0.0
+    depart_speed_mps: float = 13.4
+    depart_pos_m: float = -1.0  # front bumper on the first route edge; < 0: SUMO's "base"
+    controlled: bool = True
+    entry_heading_offset_rad: float = 0.0  # heading error at admission (paper s. 4.2: 0.35)
+    speed_profile: tuple = ()
+
+    def validate(self) -> None:
+        if not self.id or not self.approach:
+            raise ScenarioError("every [[vehicles]] entry needs an id and an approach")
+        for pt in self.speed_profile:
+            if not (isinstance(pt, (list, tuple)) and len(pt) == 2 and all(isinstance(v, (int, float)) for v in pt)):
+                raise ScenarioError(f"vehicles.{self.id}.speed_profile must be a list of [t_s, v_mps] pairs")
+        ts = [pt[0] for pt in self.speed_profile]
+        if ts != sorted(ts):
+            raise ScenarioError(f"vehicles.{self.id}.speed_profile times must increase")
 
 
 @dataclass(frozen=True)
@@ -172,6 +239,7 @@ class Outputs:
     trajectory_interval_s: float = 0.1  # log interval of trajectories.parquet (multiple of the SUMO step)
     sumo_tripinfo: bool = True
     sumo_collisions: bool = True
+    sumo_fcd: bool = False  # SUMO's floating-car data of every vehicle (fcd.xml), e.g. for SUMO-driven leaders
 
     def validate(self) -> None:
         if self.trajectory_interval_s <= 0:
@@ -187,6 +255,7 @@ _SECTIONS: dict[str, type] = {
     "planning": PlanBounds,
     "coordinator": CoordinatorSettings,
     "demand": Demand,
+    "barriers": Barriers,
     "outputs": Outputs,
 }
 
@@ -203,8 +272,10 @@ class Scenario:
     planning: PlanBounds
     coordinator: CoordinatorSettings
     demand: Demand
+    barriers: Barriers
     outputs: Outputs
     approaches: tuple[Approach, ...]
+    vehicles: tuple[ListedVehicle, ...]
     base_dir: Path
 
     @property
@@ -224,12 +295,19 @@ class Scenario:
                     continue
                 d[f.name] = list(v) if isinstance(v, tuple) else v
             out[key] = d
-        out["approaches"] = [
-            {f.name: (list(getattr(a, f.name)) if isinstance(getattr(a, f.name), tuple) else getattr(a, f.name))
-             for f in dataclasses.fields(a)}
-            for a in self.approaches
-        ]
+        def table(obj):
+            return {f.name: _plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+
+        out["approaches"] = [table(a) for a in self.approaches]
+        if self.vehicles:
+            out["vehicles"] = [table(v) for v in self.vehicles]
         return out
+
+
+def _plain(v):
+    if isinstance(v, tuple):
+        return [_plain(x) for x in v]
+    return v
 
 
 _ATTR = {"scenario": "general", "planning": "planning", "coordinator": "coordinator"}
@@ -259,9 +337,14 @@ def _coerce(section: str, key: str, typ, value):
             raise ScenarioError(f"{where} must be a string, got {value!r}")
         return value
     if origin is tuple:
-        if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
-            raise ScenarioError(f"{where} must be a list of strings, got {value!r}")
-        return tuple(value)
+        args = getattr(typ, "__args__", ())
+        if not isinstance(value, list) or (args and args[0] is str and not all(isinstance(v, str) for v in value)):
+            raise ScenarioError(f"{where} must be a list{' of strings' if args and args[0] is str else ''}, got {value!r}")
+        return tuple(tuple(v) if isinstance(v, list) else v for v in value)
+    if typ is tuple:
+        if not isinstance(value, list):
+            raise ScenarioError(f"{where} must be a list, got {value!r}")
+        return tuple(tuple(v) if isinstance(v, list) else v for v in value)
     raise ScenarioError(f"{where}: unsupported type")  # pragma: no cover
 
 
@@ -313,10 +396,10 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
         if section not in _SECTIONS:
             raise ScenarioError(f"--set {ov!r}: unknown section {section!r}")
         data.setdefault(section, {})[key] = value
-    unknown = set(data) - set(_SECTIONS) - {"approaches"}
+    unknown = set(data) - set(_SECTIONS) - {"approaches", "vehicles"}
     if unknown:
         raise ScenarioError(
-            f"unknown section(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(list(_SECTIONS) + ['approaches']))}"
+            f"unknown section(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(list(_SECTIONS) + ['approaches', 'vehicles']))}"
         )
     parts = {_ATTR[k]: _section(k, cls, data.get(k, {})) for k, cls in _SECTIONS.items()}
     appr = data.get("approaches", [])
@@ -326,7 +409,17 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
     names = [a.name for a in approaches]
     if len(set(names)) != len(names):
         raise ScenarioError(f"approach names must be unique, got {names}")
-    sc = Scenario(approaches=approaches, base_dir=Path(base_dir).resolve(), **parts)
+    listed = data.get("vehicles", [])
+    if not isinstance(listed, list):
+        raise ScenarioError("[[vehicles]] must be an array of tables")
+    vehicles = tuple(_section("vehicles", ListedVehicle, v) for v in listed)
+    for v in vehicles:
+        if v.approach not in names:
+            raise ScenarioError(f"vehicles.{v.id}.approach {v.approach!r} is not an approach ({', '.join(names)})")
+    ids = [v.id for v in vehicles]
+    if len(set(ids)) != len(ids):
+        raise ScenarioError(f"[[vehicles]] ids must be unique, got {ids}")
+    sc = Scenario(approaches=approaches, vehicles=vehicles, base_dir=Path(base_dir).resolve(), **parts)
     if not sc.network_path.is_file():
         raise ScenarioError(f"network file not found: {sc.network_path} (scenario.network = {sc.general.network!r})")
     if sc.controller.plant_step_s > sc.sumo.step_length_s:

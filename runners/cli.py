@@ -24,7 +24,9 @@ def _add_run(sub) -> None:
 def _add_paper(sub) -> None:
     p = sub.add_parser("paper", help="reproduce the paper's experiments",
                        description="Reproduce the experiments of Shivam et al. (IFAC 2020) and compare with its numbers.")
-    p.add_argument("experiment", choices=["curved"], help="curved: section 4.1, tracking on a curved road")
+    p.add_argument("experiment", choices=["curved", "cbf", "all"],
+                   help="curved: section 4.1, tracking on a curved road; cbf: section 4.2, barrier functions; "
+                        "all: both (into DIR/curved and DIR/cbf)")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
     p.add_argument("--seed", type=int, default=None, help="random seed (default: the scenario's)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")

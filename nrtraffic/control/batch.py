@@ -1,10 +1,19 @@
 """The per-SUMO-step kernel: every controlled vehicle through the plant sub-steps, batched.
 
-For each vehicle ``i`` and sub-step ``j`` (``t_j = t_start + j h``): the reference arc length is
-``s_enter[i] + p_i(t - t_enter[i])`` (its energy-optimal profile mapped onto its lane path by distance
-travelled, paper s. 4.1), the tracker takes one Euler step of eq. (12) toward ``r(t_j + T)``, and the
-plant takes one Euler step of eq. (1) with the input held over the step. Figures accumulated per
-vehicle (columns of ``acc``): see ``ACC_*``.
+For each sub-step ``t_j = t_start + j h`` and each vehicle ``i``:
+
+1. the tracker's input ``u*`` (the state of the update law, eq. 12) is filtered by the barrier
+   functions: lateral bisection on ``delta_f`` first, then the longitudinal QP on ``a_l`` given that
+   steering (paper s. 3.2, 4.2; :mod:`nrtraffic.control.cbf`);
+2. the tracker takes one Euler step of eq. (12) toward ``r(t_j + T)``, the reference being the
+   vehicle's energy-optimal profile mapped onto its lane path by distance travelled (paper s. 4.1).
+   With anti-windup it integrates from the *applied* (filtered) input, otherwise from its own;
+3. the plant takes one Euler step of eq. (1) with the applied input.
+
+Leaders (for the longitudinal barrier) are either controlled vehicles of the batch (their state at
+the start of the sub-step) or external vehicles whose state at ``t_start`` is extrapolated with
+constant acceleration. Figures accumulated per vehicle are the columns ``ACC_*`` of ``acc``; the
+state at the end of the step is written to the columns ``OUT_*`` of ``out``.
 """
 
 from __future__ import annotations
@@ -12,16 +21,49 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, objmode
 
+from nrtraffic.control import cbf
 from nrtraffic.control.nr_flow import nr_update
 from nrtraffic.geometry import path_xy, project_local
 from nrtraffic.metrics import fuel_rate
 from nrtraffic.planning.profiles import packed_position
 from nrtraffic.vehicle.bicycle import euler_step
 
-ACC_MAX_ERR, ACC_MAX_ERR_STEADY, ACC_MAX_LAT, ACC_ENERGY, ACC_FUEL, ACC_MAX_ABS_A, ACC_MAX_ERR_TRANSIENT = range(7)
-N_ACC = 7
+(ACC_MAX_ERR, ACC_MAX_ERR_STEADY, ACC_MAX_LAT, ACC_ENERGY, ACC_FUEL, ACC_MAX_ABS_A, ACC_MAX_ERR_TRANSIENT,
+ ACC_STEPS, ACC_LONG_ACTIVE, ACC_LAT_ACTIVE, ACC_LONG_FALLBACK, ACC_LAT_FALLBACK, ACC_MIN_CENTER, ACC_MIN_H_LONG,
+ ACC_MIN_H_LAT) = range(15)
+N_ACC = 15
+
+(OUT_S, OUT_LAT, OUT_REFX, OUT_REFY, OUT_ERR, OUT_A, OUT_D, OUT_LONG_FRAC, OUT_LAT_FRAC, OUT_H_LONG, OUT_H_LAT,
+ OUT_CENTER) = range(12)
+N_OUT = 12
+
+# settings packed in ``cfg``
+(CFG_H, CFG_HORIZON, CFG_DT_PRED, CFG_ALPHA, CFG_DAMPING, CFG_STEADY_AFTER, CFG_CBF_LONG, CFG_CBF_LAT, CFG_D0,
+ CFG_A_BAR, CFG_LONG_GAIN, CFG_Y_MAX, CFG_K_LAT, CFG_GAMMA, CFG_BISECT_TOL, CFG_ANTI_WINDUP, CFG_QP_MODE,
+ CFG_ROOT_C) = range(18)
+N_CFG = 18
+
+NO_LEADER = -1
+EXTERNAL_LEADER = -2
+
+# the qpsolvers backend used when cfg[CFG_QP_MODE] == 1 (set by the engine)
+QP_SOLVER = ["osqp"]
+
+
+def new_acc(n: int) -> np.ndarray:
+    """Fresh accumulator rows (minima start at +inf)."""
+    acc = np.zeros((n, N_ACC))
+    acc[:, ACC_MIN_CENTER] = np.inf
+    acc[:, ACC_MIN_H_LONG] = np.inf
+    acc[:, ACC_MIN_H_LAT] = np.inf
+    return acc
+
+
+def _qp(a_star, G, b, lo, hi):
+    a, st = cbf.long_filter_qp(a_star, G, b, lo, hi, QP_SOLVER[0])
+    return a, st
 
 
 @njit(cache=True)
@@ -33,59 +75,175 @@ def _ref_xy(prof, tau, s_enter, xy, s, out):
 
 
 @njit(cache=True)
-def advance(X, U, t_start, n_sub, h, plant_p, pred_p, horizon, dt_pred, alpha, damping, u_lo, u_hi,
-            prof, t_enter, s_enter, path_id, path_off, path_xy_all, path_s_all, hint, steady_after, acc,
-            out_s, out_lat, out_ref, out_err):
-    """Advance all vehicles from ``t_start`` by ``n_sub`` steps of ``h`` [s] (in place).
+def _tangent_curvature(xy, s, i):
+    """Unit tangent of segment ``i`` and the curvature [1/m] around it."""
+    n = s.shape[0] - 1
+    dx = xy[i + 1, 0] - xy[i, 0]
+    dy = xy[i + 1, 1] - xy[i, 1]
+    L = math.sqrt(dx * dx + dy * dy)
+    i0 = max(i - 1, 0)
+    i1 = min(i + 1, n - 1)
+    if i1 == i0:
+        return dx / L, dy / L, 0.0
+    th0 = math.atan2(xy[i0 + 1, 1] - xy[i0, 1], xy[i0 + 1, 0] - xy[i0, 0])
+    th1 = math.atan2(xy[i1 + 1, 1] - xy[i1, 1], xy[i1 + 1, 0] - xy[i1, 0])
+    dth = (th1 - th0 + math.pi) % (2.0 * math.pi) - math.pi
+    ds = 0.5 * (s[i1] + s[i1 + 1]) - 0.5 * (s[i0] + s[i0 + 1])
+    return dx / L, dy / L, dth / ds
 
-    X (N,6), U (N,2): plant states and tracker inputs. prof (N,K,5): packed profiles. path_*: packed
-    lane paths, vehicle ``i`` uses path ``path_id[i]``. hint (N,): segment hints for the projection.
-    acc (N, N_ACC): accumulated figures. out_*: arc length [m], lateral deviation [m], reference
-    position [m] and tracking error [m] at the end of the step.
+
+@njit(cache=True)
+def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_enter, s_enter, path_id, path_off,
+            path_xy_all, path_s_all, hint, lead_idx, lead_ext, acc, out):
+    """Advance all vehicles from ``t_start`` by ``n_sub`` plant steps (in place).
+
+    X (N,6), U (N,2): plant states and tracker inputs (the update law's state). prof (N,K,5):
+    packed profiles. path_*: packed lane paths, vehicle ``i`` on path ``path_id[i]``. hint (N,):
+    projection segment of each vehicle (updated). lead_idx (N,): leader's batch index, NO_LEADER or
+    EXTERNAL_LEADER; lead_ext (N,6): external leader (px, py, vx, vy, ax, ay) at ``t_start``.
+    acc (N, N_ACC): accumulated figures. out (N, N_OUT): holds the vehicle's arc length, lateral
+    deviation and tracking error at ``t_start`` on entry and at the end of the step on return.
     """
     N = X.shape[0]
+    h = cfg[CFG_H]
+    horizon = cfg[CFG_HORIZON]
+    cbf_long = cfg[CFG_CBF_LONG] > 0.5
+    cbf_lat = cfg[CFG_CBF_LAT] > 0.5
+    anti_windup = cfg[CFG_ANTI_WINDUP] > 0.5
+    qp_mode = int(cfg[CFG_QP_MODE])
     work = np.empty(6)
     u_new = np.empty(2)
+    u_app = np.empty(2)
     ref = np.empty((1, 2))
-    for i in range(N):
-        a0 = path_off[path_id[i]]
-        a1 = path_off[path_id[i] + 1]
-        xy = path_xy_all[a0:a1]
-        s = path_s_all[a0:a1]
-        x = X[i]
-        u = U[i]
-        for j in range(n_sub):
-            t = t_start + j * h
-            # tracker: r(t + T), eq. (12)
+    lead = np.empty(6)
+    snap = np.empty((N, 6))
+    zacc = np.zeros((N, 2))
+    n_long = np.zeros(N)
+    n_lat = np.zeros(N)
+    for j in range(n_sub):
+        t = t_start + j * h
+        for i in range(N):
+            vx, vy = cbf.world_velocity(X[i])
+            snap[i, 0] = X[i, 0]
+            snap[i, 1] = X[i, 1]
+            snap[i, 2] = vx
+            snap[i, 3] = vy
+            snap[i, 4] = zacc[i, 0]
+            snap[i, 5] = zacc[i, 1]
+        for i in range(N):
+            a0 = path_off[path_id[i]]
+            a1 = path_off[path_id[i] + 1]
+            xy = path_xy_all[a0:a1]
+            s = path_s_all[a0:a1]
+            x = X[i]
+            u = U[i]
+            u_app[0] = u[0]
+            u_app[1] = u[1]
+            pinned_a = False
+            pinned_d = False
+            # ---- lateral barrier: bisection on the steering
+            if cbf_lat:
+                tx, ty, curv = _tangent_curvature(xy, s, hint[i])
+                d, st, hl = cbf.lat_filter(x, u_app[0], u_app[1], plant_p, out[i, OUT_LAT], tx, ty, curv,
+                                           cfg[CFG_Y_MAX], cfg[CFG_K_LAT], cfg[CFG_GAMMA], u_hi[1], cfg[CFG_BISECT_TOL])
+                u_app[1] = d
+                out[i, OUT_H_LAT] = hl
+                if hl < acc[i, ACC_MIN_H_LAT]:
+                    acc[i, ACC_MIN_H_LAT] = hl
+                if st != cbf.INACTIVE:
+                    pinned_d = True
+                    acc[i, ACC_LAT_ACTIVE] += 1.0
+                    n_lat[i] += 1.0
+                if st == cbf.FALLBACK:
+                    acc[i, ACC_LAT_FALLBACK] += 1.0
+            # ---- leader state at t
+            has_lead = lead_idx[i] != NO_LEADER
+            if has_lead:
+                if lead_idx[i] >= 0:
+                    for k in range(6):
+                        lead[k] = snap[lead_idx[i], k]
+                else:
+                    tau = t - t_start
+                    for k in range(2):
+                        lead[k] = lead_ext[i, k] + lead_ext[i, 2 + k] * tau + 0.5 * lead_ext[i, 4 + k] * tau * tau
+                        lead[2 + k] = lead_ext[i, 2 + k] + lead_ext[i, 4 + k] * tau
+                        lead[4 + k] = lead_ext[i, 4 + k]
+                dc = math.sqrt((lead[0] - x[0]) ** 2 + (lead[1] - x[1]) ** 2)
+                out[i, OUT_CENTER] = dc
+                if dc < acc[i, ACC_MIN_CENTER]:
+                    acc[i, ACC_MIN_CENTER] = dc
+            # ---- longitudinal barrier: one-dimensional QP on the acceleration
+            if cbf_long and has_lead:
+                hb, G, b = cbf.long_constraint(x, u_app[1], plant_p, lead, cfg[CFG_D0], cfg[CFG_A_BAR],
+                                               cfg[CFG_LONG_GAIN], cfg[CFG_ROOT_C])
+                if qp_mode == 0:
+                    a, st = cbf.long_filter_closed(u_app[0], G, b, u_lo[0], u_hi[0])
+                else:
+                    a_star = u_app[0]
+                    lo = u_lo[0]
+                    hi = u_hi[0]
+                    with objmode(a="float64", st="int64"):
+                        a, st = _qp(a_star, G, b, lo, hi)
+                u_app[0] = a
+                out[i, OUT_H_LONG] = hb
+                if hb < acc[i, ACC_MIN_H_LONG]:
+                    acc[i, ACC_MIN_H_LONG] = hb
+                if st != cbf.INACTIVE:
+                    pinned_a = True
+                    acc[i, ACC_LONG_ACTIVE] += 1.0
+                    n_long[i] += 1.0
+                if st == cbf.FALLBACK:
+                    acc[i, ACC_LONG_FALLBACK] += 1.0
+            # ---- tracker, eq. (12). Anti-windup: it integrates from the applied input, and an input
+            # a barrier overrides is pinned (the flow moves the other one alone). Without: it runs on
+            # its own state as if unfiltered.
             _ref_xy(prof[i], t + horizon - t_enter[i], s_enter[i], xy, s, ref)
-            nr_update(x, u, pred_p, ref[0], horizon, dt_pred, alpha, damping, h, u_lo, u_hi, u_new)
-            # plant, eq. (1), input held over the step
-            a = u[0]
+            if anti_windup:
+                u[0] = u_app[0]
+                u[1] = u_app[1]
+                tx, ty, _ = _tangent_curvature(xy, s, hint[i])
+                nr_update(x, u, pred_p, ref[0], horizon, cfg[CFG_DT_PRED], cfg[CFG_ALPHA], cfg[CFG_DAMPING], h,
+                          u_lo, u_hi, u_new, not pinned_a, not pinned_d, tx, ty)
+            else:
+                nr_update(x, u, pred_p, ref[0], horizon, cfg[CFG_DT_PRED], cfg[CFG_ALPHA], cfg[CFG_DAMPING], h,
+                          u_lo, u_hi, u_new, True, True)
+            # ---- plant, eq. (1), applied input held over the step
+            a = u_app[0]
             v = x[2]
-            euler_step(x, u, plant_p, h, work)
+            vx0 = snap[i, 2]
+            vy0 = snap[i, 3]
+            euler_step(x, u_app, plant_p, h, work)
+            vx1, vy1 = cbf.world_velocity(x)
+            zacc[i, 0] = (vx1 - vx0) / h
+            zacc[i, 1] = (vy1 - vy0) / h
             acc[i, ACC_ENERGY] += 0.5 * a * a * h
             acc[i, ACC_FUEL] += fuel_rate(v, a) * h
+            acc[i, ACC_STEPS] += 1.0
             if abs(a) > acc[i, ACC_MAX_ABS_A]:
                 acc[i, ACC_MAX_ABS_A] = abs(a)
             u[0] = u_new[0]
             u[1] = u_new[1]
-            # figures at t + h
+            # ---- figures at t + h
             tn = t + h
-            sr = _ref_xy(prof[i], tn - t_enter[i], s_enter[i], xy, s, ref)
+            _ref_xy(prof[i], tn - t_enter[i], s_enter[i], xy, s, ref)
             err = math.sqrt((x[0] - ref[0, 0]) ** 2 + (x[1] - ref[0, 1]) ** 2)
             sp, lat, hint[i] = project_local(xy, s, x[0], x[1], hint[i], 3, 12)
+            out[i, OUT_S] = sp
+            out[i, OUT_LAT] = lat
+            out[i, OUT_REFX] = ref[0, 0]
+            out[i, OUT_REFY] = ref[0, 1]
+            out[i, OUT_ERR] = err
+            out[i, OUT_A] = u_app[0]
+            out[i, OUT_D] = u_app[1]
             if err > acc[i, ACC_MAX_ERR]:
                 acc[i, ACC_MAX_ERR] = err
-            if tn - t_enter[i] > steady_after:
+            if tn - t_enter[i] > cfg[CFG_STEADY_AFTER]:
                 if err > acc[i, ACC_MAX_ERR_STEADY]:
                     acc[i, ACC_MAX_ERR_STEADY] = err
             elif err > acc[i, ACC_MAX_ERR_TRANSIENT]:
                 acc[i, ACC_MAX_ERR_TRANSIENT] = err
             if abs(lat) > acc[i, ACC_MAX_LAT]:
                 acc[i, ACC_MAX_LAT] = abs(lat)
-            if j == n_sub - 1:
-                out_s[i] = sp
-                out_lat[i] = lat
-                out_ref[i, 0] = ref[0, 0]
-                out_ref[i, 1] = ref[0, 1]
-                out_err[i] = err
+    for i in range(N):
+        out[i, OUT_LONG_FRAC] = n_long[i] / n_sub
+        out[i, OUT_LAT_FRAC] = n_lat[i] / n_sub

@@ -89,11 +89,18 @@ def nr_direction(J, e, damping, du):
 
 
 @njit(cache=True)
-def nr_update(x, u, p_pred, ref_future, horizon, dt_pred, alpha, damping, h, u_lo, u_hi, u_out):
+def nr_update(x, u, p_pred, ref_future, horizon, dt_pred, alpha, damping, h, u_lo, u_hi, u_out, free_a=True,
+              free_d=True, tx=1.0, ty=0.0):
     """One Euler step of the update law, eq. (12): ``u_out = clip(u + h alpha J^-1 (r - g))``.
 
     ``ref_future`` is ``r(t+T)`` [m]; ``h`` the controller step [s]; ``u_lo``/``u_hi`` the input
     bounds (the integrator restarts from the clipped value: no wind-up).
+    ``free_a`` / ``free_d`` false mark an input a barrier overrides. The free input then takes the
+    Gauss-Newton step of its own column of ``dg/du`` (``J_k^T e_k / (J_k^T J_k + lambda)``) on its
+    share of the error only: the component along the path tangent ``(tx, ty)`` for the
+    acceleration, along the normal for the steering. The full Newton step would make the steering
+    compensate for an acceleration the barrier does not let through, i.e. swerve to chase the
+    along-path error the barrier holds open.
     Returns the prediction error ``|r(t+T) - g|`` [m].
     """
     g = np.empty(2)
@@ -102,8 +109,18 @@ def nr_update(x, u, p_pred, ref_future, horizon, dt_pred, alpha, damping, h, u_l
     e = np.empty(2)
     e[0] = ref_future[0] - g[0]
     e[1] = ref_future[1] - g[1]
-    du = np.empty(2)
+    du = np.zeros(2)
     nr_direction(J, e, damping, du)
+    for k in range(2):
+        if (k == 0 and not free_d and free_a) or (k == 1 and not free_a and free_d):
+            # the other input is pinned: this one takes the Gauss-Newton step of its own column on
+            # its own share of the error; the pinned one keeps its Newton step (it keeps pressing
+            # against the barrier, which pins it again next step)
+            dx = tx if k == 0 else -ty
+            dy = ty if k == 0 else tx
+            ek = e[0] * dx + e[1] * dy
+            n2 = J[0, k] * J[0, k] + J[1, k] * J[1, k]
+            du[k] = (J[0, k] * dx + J[1, k] * dy) * ek / (n2 * (1.0 + damping) + 1e-300)
     for i in range(2):
         v = u[i] + h * alpha * du[i]
         if v < u_lo[i]:

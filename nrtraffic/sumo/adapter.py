@@ -66,8 +66,9 @@ class VehicleType:
 def write_routes(path: Path, vtype: VehicleType, routes: dict[str, tuple[str, ...]], vehicles) -> None:
     """Write a SUMO route file.
 
-    ``vehicles``: iterable of ``(vehicle_id, route_name, depart_s, depart_speed_mps)`` sorted by
-    departure. Speeds are deterministic (``speedFactor=1``, ``sigma=0``); randomness comes from the
+    ``vehicles``: iterable of ``(vehicle_id, route_name, depart_s, depart_speed_mps[, depart_pos_m])``
+    sorted by departure (``depart_pos_m`` < 0 or absent: SUMO's ``base``, the vehicle just on the
+    lane). Speeds are deterministic (``speedFactor=1``, ``sigma=0``); randomness comes from the
     arrival times only.
     """
     lines = ["<routes>"]
@@ -78,10 +79,12 @@ def write_routes(path: Path, vtype: VehicleType, routes: dict[str, tuple[str, ..
     )
     for name, edges in routes.items():
         lines.append(f'    <route id="{name}" edges="{" ".join(edges)}"/>')
-    for vid, route, depart, speed in vehicles:
+    for vid, route, depart, speed, *rest in vehicles:
+        pos = rest[0] if rest and rest[0] >= 0 else "base"
+        pos = pos if isinstance(pos, str) else f"{pos:.3f}"
         lines.append(
             f'    <vehicle id="{vid}" type="{vtype.id}" route="{route}" depart="{depart:.2f}" '
-            f'departSpeed="{speed:.3f}" departPos="base" departLane="0"/>'
+            f'departSpeed="{speed:.3f}" departPos="{pos}" departLane="0"/>'
         )
     lines.append("</routes>")
     path.write_text("\n".join(lines) + "\n")
@@ -96,12 +99,13 @@ class SumoSession:
     step_length_s : SUMO step [s].
     seed : SUMO's ``--seed``.
     lateral_resolution_m : sublane width [m].
-    tripinfo, collisions : output files (None: not written). A name ending in .csv or .parquet
-        selects that format (SUMO's own writers).
+    tripinfo, collisions, fcd : output files (None: not written). A name ending in .csv or
+        .parquet selects that format (SUMO's own writers).
     """
 
     def __init__(self, net: Path, routes: Path, step_length_s: float, seed: int, lateral_resolution_m: float = 0.25,
-                 tripinfo: Path | None = None, collisions: Path | None = None, extra_args: tuple[str, ...] = ()):
+                 tripinfo: Path | None = None, collisions: Path | None = None, fcd: Path | None = None,
+                 extra_args: tuple[str, ...] = ()):
         self.args = [
             "sumo",
             "--net-file", str(net),
@@ -121,6 +125,8 @@ class SumoSession:
             self.args += ["--tripinfo-output", str(tripinfo), "--device.emissions.probability", "1"]
         if collisions is not None:
             self.args += ["--collision-output", str(collisions)]
+        if fcd is not None:
+            self.args += ["--fcd-output", str(fcd), "--fcd-output.acceleration", "true"]
         self.args += list(extra_args)
         self.step_length = float(step_length_s)
         self.traci = None
@@ -215,6 +221,10 @@ class SumoSession:
 
     def speed(self, vid: str) -> float:
         return self.traci.vehicle.getSpeed(vid)
+
+    def acceleration(self, vid: str) -> float:
+        """Longitudinal acceleration in the last step [m/s^2]."""
+        return self.traci.vehicle.getAcceleration(vid)
 
     def lane_position(self, vid: str) -> tuple[str, float]:
         """(lane id, front-bumper position along it [m])."""
