@@ -111,3 +111,17 @@ def cbf_figures(with_cbf: pd.DataFrame, without_cbf: pd.DataFrame, fcd: pd.DataF
         ax.grid(alpha=0.3)
         paths.append(_save(fig, out / name))
     return paths
+
+
+def antiwindup_figure(on: pd.DataFrame, off: pd.DataFrame, path: Path) -> Path:
+    """Lateral deviation and steering with and without anti-windup of the tracker."""
+    fig, axes = plt.subplots(2, 1, figsize=(6.4, 5.6), sharex=True)
+    for df, label, color in ((on, "anti-windup (default)", "tab:red"), (off, "no anti-windup", "tab:purple")):
+        axes[0].plot(df["t"], df["lateral_dev_m"], label=label, color=color, lw=1.0)
+        axes[1].plot(df["t"], df["delta_cmd"], label=label, color=color, lw=1.0)
+    axes[0].set(ylabel="lateral deviation [m]", title="Tracker anti-windup against the barriers (T = 0.2 s)")
+    axes[1].set(xlabel="time [s]", ylabel="delta_f applied [rad]")
+    for ax in axes:
+        ax.legend()
+        ax.grid(alpha=0.3)
+    return _save(fig, path)
