@@ -24,14 +24,32 @@ from nrtraffic import __version__, metrics
 from nrtraffic.control import batch as kb
 from nrtraffic.demand import shifted_exponential_arrivals
 from nrtraffic.geometry import LanePath
+from nrtraffic.planning.conflicts import MovementGeometry, classify
 from nrtraffic.planning.coordinator import Coordinator, ScheduleInfeasible
 from nrtraffic.results import VEHICLE_COLUMNS, RunResult, TrajectoryWriter
 from nrtraffic.scenario import Scenario
 from nrtraffic.sumo.adapter import SumoSession, VehicleType, sumo_version, write_routes
+from nrtraffic.sumo.network import junction_movements
 
 N_PROFILE_SEG = 5  # packed profile segments (at most 3 arcs + cruise, padded)
 STEADY_AFTER_S = 3.0  # DESIGN.md: steady-state tracking error counts after 3 s under control
 PATH_SPACING_M = 0.25  # sampling of the smoothed lane paths [m]
+LEADER_LOOKAHEAD_M = 200.0  # how far along its path a vehicle looks for its leader [m]
+
+
+def _boxes_overlap(x1, y1, h1, x2, y2, h2, length, width) -> bool:
+    """Separating-axis test of two rectangles (centre, heading [rad], same size)."""
+    axes = [(math.cos(h1), math.sin(h1)), (-math.sin(h1), math.cos(h1)),
+            (math.cos(h2), math.sin(h2)), (-math.sin(h2), math.cos(h2))]
+    dx, dy = x2 - x1, y2 - y1
+    for ax, ay in axes:
+        r1 = 0.5 * length * abs(math.cos(h1) * ax + math.sin(h1) * ay) + 0.5 * width * abs(
+            -math.sin(h1) * ax + math.cos(h1) * ay)
+        r2 = 0.5 * length * abs(math.cos(h2) * ax + math.sin(h2) * ay) + 0.5 * width * abs(
+            -math.sin(h2) * ax + math.cos(h2) * ay)
+        if abs(dx * ax + dy * ay) > r1 + r2:
+            return False
+    return True
 
 
 class RunFailed(RuntimeError):
@@ -43,16 +61,24 @@ class RunFailed(RuntimeError):
 
 
 @dataclass
-class ApproachPath:
-    """An approach's lane path and its zone boundaries (arc length of the centre of gravity) [m]."""
+class Movement:
+    """A movement's lane path and its zone boundaries (arc length of the centre of gravity) [m].
+
+    ``approach`` is the lane key of the coordinator (vehicles entering on the same lane), ``turn``
+    the movement (left, straight, right; ``through`` on a plain road).
+    """
 
     name: str
+    approach: str
+    turn: str
     route: tuple[str, ...]
     path: LanePath
+    lanes: list  # lane ids in driving order
     lane_offset: dict  # lane id -> (s at lane start, path length / SUMO length)
     s_control: float
     s_merge: float
     s_exit: float
+    v_limit: float = math.inf  # lowest lane speed limit along the path (SUMO's turn speeds) [m/s]
 
     def s_of(self, lane: str, pos: float) -> float:
         off, scale = self.lane_offset[lane]
@@ -64,6 +90,7 @@ class VehicleRecord:
     vehicle_id: str
     approach: str
     t_depart: float
+    movement: str = ""
     controlled: bool = True
     heading_offset: float = 0.0
     speed_profile: tuple = ()
@@ -82,6 +109,7 @@ class VehicleRecord:
     acc: np.ndarray = field(default_factory=lambda: kb.new_acc(1)[0])
     min_gap: float = math.inf
     s_last: float = math.nan
+    t_held: float = 0.0  # time held at the control-zone entry for want of a feasible schedule [s]
 
 
 class Engine:
@@ -95,11 +123,19 @@ class Engine:
     duration_s : simulated time [s]; default the scenario's (0: until every vehicle has left).
     trajectories : optional streaming writer for per-step vehicle rows.
     progress : show a progress bar.
+    control : False runs the same demand with SUMO driving every vehicle (a baseline); the zone
+        crossings and figures are measured the same way.
+    network : a network to use instead of the scenario's (the baselines' junction control).
+    label : what drove the vehicles, for the summary ("nrtraffic" or the baseline's name).
     """
 
     def __init__(self, scenario: Scenario, workdir: Path, seed: int | None = None, duration_s: float | None = None,
-                 trajectories: TrajectoryWriter | None = None, progress: bool = False):
+                 trajectories: TrajectoryWriter | None = None, progress: bool = False, control: bool = True,
+                 network: Path | None = None, label: str = "nrtraffic"):
         self.sc = scenario
+        self.control = control
+        self.network_path = Path(network) if network is not None else scenario.network_path
+        self.label = label
         self.seed = scenario.general.seed if seed is None else int(seed)
         self.duration = scenario.general.duration_s if duration_s is None else float(duration_s)
         self.workdir = Path(workdir)
@@ -140,43 +176,91 @@ class Engine:
         self.t = 0.0
 
     # ------------------------------------------------------------------ set-up
+    def _movement_table(self) -> None:
+        """Movements known before SUMO starts: name -> (approach lane key, turn, route)."""
+        sc = self.sc
+        self.movement_table: dict[str, tuple[str, str, tuple[str, ...]]] = {}
+        if sc.junction.id:
+            moves, self.junction_xy = junction_movements(self.network_path, sc.junction.id)
+            for m in moves:
+                self.movement_table[m.name] = (m.in_edge, m.turn, (m.in_edge, m.out_edge))
+        else:
+            self.junction_xy = None
+            for a in sc.approaches:
+                self.movement_table[a.name] = (a.name, "through", a.route)
+
     def _demand(self) -> list[tuple]:
+        """Departures ``(vehicle_id, movement, depart_s, depart_speed, depart_pos)`` from the run's
+        random generator: per approach, shifted-exponential headways; at a junction each vehicle
+        draws its movement from the turning shares."""
         d = self.sc.demand
         rng = np.random.default_rng(self.seed)
         veh = []
-        if d.mean_headway_s > 0:
+        headway = d.headway_s
+        if headway > 0:
             end = d.end_s if d.end_s > 0 else (self.duration if self.duration > 0 else math.inf)
             if d.max_vehicles == 0 and not math.isfinite(end):
                 raise ValueError("random demand needs demand.max_vehicles, demand.end_s or scenario.duration_s")
-            for a in self.sc.approaches:
-                times = shifted_exponential_arrivals(rng, d.begin_s, end, d.mean_headway_s, d.min_headway_s,
-                                                     d.max_vehicles)
-                veh += [(f"{a.name}.{k}", a.name, float(t), d.entry_speed_mps, -1.0) for k, t in enumerate(times)]
+            approaches: dict[str, list[str]] = {}
+            for name, (appr, _, _) in self.movement_table.items():
+                approaches.setdefault(appr, []).append(name)
+            for appr, names in approaches.items():
+                times = shifted_exponential_arrivals(rng, d.begin_s, end, headway, d.min_headway_s, d.max_vehicles)
+                share = np.array([{"left": d.turn_left, "right": d.turn_right}.get(self.movement_table[n][1],
+                                  1.0 - d.turn_left - d.turn_right) for n in names])
+                if share.sum() <= 0:
+                    share = np.ones(len(names))
+                picks = rng.choice(len(names), size=len(times), p=share / share.sum())
+                veh += [(f"{appr}.{k}", names[j], float(t), d.entry_speed_mps, -1.0)
+                        for k, (t, j) in enumerate(zip(times, picks))]
         for v in self.sc.vehicles:
-            veh.append((v.id, v.approach, v.depart_s, v.depart_speed_mps, v.depart_pos_m))
+            mv = v.approach
+            if mv not in self.movement_table:
+                raise ValueError(f"vehicle {v.id}: {mv!r} is not a movement ({', '.join(self.movement_table)})")
+            veh.append((v.id, mv, v.depart_s, v.depart_speed_mps, v.depart_pos_m))
         veh.sort(key=lambda v: v[2])
         return veh
 
-    def _paths(self, sumo: SumoSession) -> dict[str, ApproachPath]:
+    def _paths(self, sumo: SumoSession) -> dict[str, Movement]:
         out = {}
         z = self.sc.zones
-        for a in self.sc.approaches:
-            lanes = sumo.route_lanes(a.route)
+        merge_at = {a.name: a for a in self.sc.approaches}
+        for name, (appr, turn, route) in self.movement_table.items():
+            lanes = sumo.route_lanes(route)
             pts = [pt for _, shape, _ in lanes for pt in shape]
             path = LanePath.from_points(pts, smooth_spacing=PATH_SPACING_M)
             # arc length of each lane's start on the (smoothed) path; lane positions scale linearly
             starts = [path.project(shape[0])[0] for _, shape, _ in lanes] + [path.length]
             offsets = {lane: (starts[k], (starts[k + 1] - starts[k]) / length if length > 0 else 1.0)
                        for k, (lane, _, length) in enumerate(lanes)}
-            lane_m = f"{a.merge_entry_edge}_0"
-            s_m = offsets[lane_m][0] + a.merge_entry_pos_m * offsets[lane_m][1]
+            if self.junction_xy is not None:
+                # merging zone: the disc of diameter merging_zone_m around the junction centre
+                dist = np.hypot(path.xy[:, 0] - self.junction_xy[0], path.xy[:, 1] - self.junction_xy[1])
+                inside = np.flatnonzero(dist <= z.merging_zone_m / 2.0)
+                if inside.size == 0 or inside[0] == 0:
+                    raise ValueError(f"movement {name}: its path does not enter the merging zone from outside")
+                s_m, s_x = float(path.s[inside[0]]), float(path.s[min(inside[-1], len(path.s) - 1)])
+            else:
+                a = merge_at[name]
+                lane_m = f"{a.merge_entry_edge}_0"
+                s_m = offsets[lane_m][0] + a.merge_entry_pos_m * offsets[lane_m][1]
+                s_x = s_m + z.merging_zone_m
             s_c = s_m - z.control_zone_m
             if s_c < -1e-6:
-                raise ValueError(f"approach {a.name}: the control zone would start before the route does")
-            if s_m + z.merging_zone_m > path.length:
-                raise ValueError(f"approach {a.name}: the merging zone runs past the end of the route")
-            out[a.name] = ApproachPath(a.name, a.route, path, offsets, s_c, s_m, s_m + z.merging_zone_m)
+                raise ValueError(f"movement {name}: the control zone would start before the route does")
+            if s_x > path.length:
+                raise ValueError(f"movement {name}: the merging zone runs past the end of the route")
+            v_lim = min(sumo.lane_speed(ln) for ln, _, _ in lanes) if self.junction_xy is not None else math.inf
+            out[name] = Movement(name, appr, turn, route, path, [ln for ln, _, _ in lanes], offsets, s_c, s_m, s_x,
+                                 v_lim)
         return out
+
+    def _relations(self) -> dict:
+        geo = []
+        for m in self.paths.values():
+            sel = (m.path.s >= m.s_merge) & (m.path.s <= m.s_exit)
+            geo.append(MovementGeometry(m.name, m.lanes[0], m.lanes[-1], m.path.xy[sel]))
+        return classify(geo, self.sc.junction.conflict_distance_m)
 
     # ------------------------------------------------------------------ run
     def run(self) -> RunResult:
@@ -190,28 +274,31 @@ class Engine:
         wall0 = time.perf_counter()
         error = None
         try:
+            self._movement_table()
             demand = self._demand()
             listed = {v.id: v for v in self.sc.vehicles}
-            for vid, appr, t, _, _ in demand:
+            for vid, mv, t, _, _ in demand:
                 lv = listed.get(vid)
                 self.records[vid] = VehicleRecord(
-                    vid, appr, t, controlled=lv.controlled if lv else True,
+                    vid, self.movement_table[mv][0], t, movement=mv,
+                    controlled=(lv.controlled if lv else True) and self.control,
                     heading_offset=lv.entry_heading_offset_rad if lv else 0.0,
                     speed_profile=lv.speed_profile if lv else ())
             routes = sdir / "routes.rou.xml"
-            write_routes(routes, vtype, {a.name: a.route for a in self.sc.approaches}, demand)
+            write_routes(routes, vtype, {k: v[2] for k, v in self.movement_table.items()}, demand)
             o = self.sc.outputs
             self.sumo = SumoSession(
-                self.sc.network_path, routes, self.sc.sumo.step_length_s, self.seed,
+                self.network_path, routes, self.sc.sumo.step_length_s, self.seed,
                 self.sc.sumo.lateral_resolution_m,
                 tripinfo=self.workdir / "tripinfo.xml" if o.sumo_tripinfo else None,
                 collisions=self.workdir / "collisions.xml" if o.sumo_collisions else None,
                 fcd=self.workdir / "fcd.xml" if o.sumo_fcd else None,
                 extra_args=self.sc.sumo.extra_args,
             )
-            self.coord = Coordinator(self.sc.coordinator, self.sc.planning)
             with self.sumo:
                 self.paths = self._paths(self.sumo)
+                self.relations = self._relations()
+                self.coord = Coordinator(self.sc.coordinator, self.sc.planning, self.relations)
                 self._loop()
         except (Exception, KeyboardInterrupt) as exc:  # keep what was finished
             error = exc
@@ -230,6 +317,7 @@ class Engine:
         dt = sc.sumo.step_length_s
         log_every = max(1, int(round(sc.outputs.trajectory_interval_s / dt)))
         self.batch_ids: list[str] = []
+        self.uncontrolled: list[str] = []
         self._pack_paths()
         self._alloc(0)
         approaching: list[str] = []
@@ -257,12 +345,23 @@ class Engine:
                         approaching.append(vid)
                     else:
                         rec.status = "sumo"
+                        self.uncontrolled.append(vid)
                         if rec.speed_profile:
                             scripted.append(vid)
+                blocked: set[str] = set()  # lanes whose first waiting vehicle could not be admitted
                 for vid in list(approaching):
-                    if self._try_admit(vid):
+                    rec = self.records[vid]
+                    if rec.approach in blocked:
+                        continue
+                    state = self._try_admit(vid)
+                    if state == "admitted":
                         approaching.remove(vid)
+                    elif state == "held":
+                        blocked.add(rec.approach)
+                        rec.t_held += dt
+                self._track_uncontrolled(dt)
                 self._leaders()
+                self._collisions_geometric()
                 if step % log_every == 0:
                     self._log()
                 self._advance(dt)
@@ -323,85 +422,157 @@ class Engine:
             setattr(self, name, np.ascontiguousarray(getattr(self, name)[keep]))
 
     # ------------------------------------------------------------------ steps
-    def _try_admit(self, vid: str) -> bool:
+    def _try_admit(self, vid: str) -> str:
+        """Admit a vehicle whose centre of gravity crossed the control-zone entry: "waiting" (not
+        there yet), "admitted", or "held" (no merge time meets the bounds: SUMO stops it at the
+        entry and admission is tried again every step, so that the lane's FIFO order is kept)."""
         rec = self.records[vid]
-        ap = self.paths[rec.approach]
+        mv = self.paths[rec.movement]
         lane, pos = self.sumo.lane_position(vid)
-        if lane not in ap.lane_offset:
-            return False
-        s_cg = ap.s_of(lane, pos) - self.params.cg_to_front
-        if s_cg < ap.s_control - 1e-6:
-            return False
+        if lane not in mv.lane_offset:
+            return "waiting"
+        s_cg = mv.s_of(lane, pos) - self.params.cg_to_front
+        if s_cg < mv.s_control - 1e-6:
+            return "waiting"
         xf, yf, psi = self.sumo.front_pose(vid)
         v = self.sumo.speed(vid)
         cg = self.params.cg_to_front
         x0 = np.array([xf - cg * math.cos(psi), yf - cg * math.sin(psi), v, 0.0, psi + rec.heading_offset, 0.0])
-        s_proj, lat0 = ap.path.project(x0[:2])
-        D = ap.s_merge - s_proj
+        s_proj, lat0 = mv.path.project(x0[:2])
+        D = mv.s_merge - s_proj
         try:
-            asg = self.coord.schedule(vid, rec.approach, self.t, v, D)
+            if D <= 0.5:
+                raise ScheduleInfeasible(f"vehicle {vid} is already at the merging zone")
+            asg = self.coord.schedule(vid, rec.approach, self.t, v, D, rec.movement, mv.s_exit - mv.s_merge,
+                                      mv.v_limit)
         except ScheduleInfeasible:
-            rec.status = "infeasible"
-            raise
+            if rec.status != "held":
+                rec.status = "held"
+                self.sumo.hold_speed(vid, 0.0)
+            return "held"
         rec.status = "controlled"
         rec.t_enter, rec.v_enter, rec.s_enter = self.t, v, s_proj
         rec.t_merge_planned, rec.v_merge_planned = asg.t_merge, asg.profile.v_m
         rec.predecessor, rec.relation, rec.binding = asg.predecessor, asg.relation, asg.binding
         rec.profile_kind = asg.profile.kind
         rec.s_last = s_proj
-        hint = int(np.clip(np.searchsorted(ap.path.s, s_proj) - 1, 0, len(ap.path.s) - 2))
-        self._append(vid, x0, asg.profile.packed(N_PROFILE_SEG), self.t, s_proj, lat0, ap.path.xy_at(s_proj),
-                     self.path_names.index(rec.approach), hint)
-        return True
+        hint = int(np.clip(np.searchsorted(mv.path.s, s_proj) - 1, 0, len(mv.path.s) - 2))
+        self._append(vid, x0, asg.profile.packed(N_PROFILE_SEG), self.t, s_proj, lat0, mv.path.xy_at(s_proj),
+                     self.path_names.index(rec.movement), hint)
+        return "admitted"
+
+    def _track_uncontrolled(self, dt: float) -> None:
+        """Zone crossings and figures of SUMO-driven vehicles (baselines, scripted leaders), from
+        their lane positions, speeds and accelerations each step."""
+        if not self.uncontrolled:
+            return
+        live = set(self.sumo.vehicle_ids())
+        cg = self.params.cg_to_front
+        for vid in list(self.uncontrolled):
+            rec = self.records[vid]
+            if vid not in live:
+                self.uncontrolled.remove(vid)
+                continue
+            mv = self.paths[rec.movement]
+            lane, pos = self.sumo.lane_position(vid)
+            if lane not in mv.lane_offset:
+                continue
+            s_new = mv.s_of(lane, pos) - cg
+            v, a = self.sumo.speed(vid), self.sumo.acceleration(vid)
+            s_prev = rec.s_last
+            if math.isnan(rec.t_enter) and s_new >= mv.s_control:
+                frac = 0.0 if math.isnan(s_prev) or s_new <= s_prev else (mv.s_control - s_prev) / (s_new - s_prev)
+                rec.t_enter = self.t - dt + dt * min(max(frac, 0.0), 1.0) if not math.isnan(s_prev) else self.t
+                rec.v_enter, rec.s_enter = v, mv.s_control
+            if not math.isnan(s_prev) and s_new > s_prev:
+                if math.isnan(rec.t_merge_actual) and s_new >= mv.s_merge > s_prev:
+                    rec.t_merge_actual = self.t - dt + dt * (mv.s_merge - s_prev) / (s_new - s_prev)
+                if math.isnan(rec.t_exit) and s_new >= mv.s_exit > s_prev:
+                    rec.t_exit = self.t - dt + dt * (mv.s_exit - s_prev) / (s_new - s_prev)
+            if not math.isnan(rec.t_enter) and math.isnan(rec.t_exit):
+                acc = rec.acc
+                acc[kb.ACC_ENERGY] += 0.5 * a * a * dt
+                acc[kb.ACC_FUEL] += metrics.fuel_rate(v, a) * dt
+                acc[kb.ACC_MAX_ABS_A] = max(acc[kb.ACC_MAX_ABS_A], abs(a))
+                acc[kb.ACC_STEPS] += 1
+            rec.s_last = s_new
 
     def _leaders(self) -> None:
-        """For each controlled vehicle, the vehicle ahead on its path (controlled or SUMO-driven):
-        its batch index or its state, and the bumper gap [m] to it, all at time ``t``."""
+        """For each controlled vehicle, the nearest vehicle ahead on the lanes of its own path
+        (controlled or SUMO-driven, of any movement: the same lane before a diverge, the same
+        outgoing lane after a merge): its batch index or its state, and the bumper gap [m] to it,
+        all at time ``t``. Vehicles on other lanes (crossing movements) are kept apart by the
+        coordinator, not by the barrier."""
         n = len(self.batch_ids)
         if n == 0:
             return
         p = self.params
         self.lead_idx[:] = kb.NO_LEADER
         self.gap[:] = np.nan
-        pos: dict[str, list] = {}
         index = {v: i for i, v in enumerate(self.batch_ids)}
-        for i, vid in enumerate(self.batch_ids):
-            pos.setdefault(self.records[vid].approach, []).append((self.out[i, kb.OUT_S], vid))
-        ext = {}
+        by_lane: dict[str, list] = {}
+        front: dict[str, tuple[str, float]] = {}
         for vid in self.sumo.vehicle_ids():
-            if vid in index:
-                continue
-            rec = self.records.get(vid)
-            if rec is None or rec.approach not in pos:
-                continue
-            ap = self.paths[rec.approach]
-            lane, lp = self.sumo.lane_position(vid)
-            if lane not in ap.lane_offset:
-                continue
-            xf, yf, psi = self.sumo.front_pose(vid)
-            v, a = self.sumo.speed(vid), self.sumo.acceleration(vid)
-            c, s = math.cos(psi), math.sin(psi)
-            ext[vid] = (xf - p.cg_to_front * c, yf - p.cg_to_front * s, v * c, v * s, a * c, a * s)
-            pos[rec.approach].append((ap.s_of(lane, lp) - p.cg_to_front, vid))
-        for lst in pos.values():
+            lane, pos = self.sumo.lane_position(vid)
+            by_lane.setdefault(lane, []).append((pos, vid))
+            front[vid] = (lane, pos)
+        for lst in by_lane.values():
             lst.sort()
-            for k in range(len(lst) - 1):
-                s_f, vid = lst[k]
-                if vid not in index:
-                    continue
-                s_l, lead = lst[k + 1]
-                i = index[vid]
-                if lead in index:
-                    self.lead_idx[i] = index[lead]
-                else:
-                    self.lead_idx[i] = kb.EXTERNAL_LEADER
-                    self.lead_ext[i] = ext[lead]
-                gap = s_l - s_f - p.length  # rear of the leader minus front of the follower (same type)
-                self.gap[i] = gap
-                rec = self.records[vid]
-                rec.min_gap = min(rec.min_gap, gap)
-                if gap < 0.0:
-                    self.geometric_collisions.add(tuple(sorted((vid, lead))))
+        ext_cache: dict[str, tuple] = {}
+        for vid, i in index.items():
+            if vid not in front:
+                continue
+            mv = self.paths[self.records[vid].movement]
+            lane, pos = front[vid]
+            if lane not in mv.lane_offset:
+                continue
+            k0 = mv.lanes.index(lane)
+            lead, lead_front = None, 0.0
+            ahead = 0.0  # path length searched beyond this vehicle's lane [m]
+            for k in range(k0, len(mv.lanes)):
+                ln = mv.lanes[k]
+                for lpos, other in by_lane.get(ln, ()):
+                    if other != vid and (k > k0 or lpos > pos):
+                        lead, lead_front = other, mv.s_of(ln, lpos)
+                        break
+                if lead is not None:
+                    break
+                ahead += mv.lane_offset[mv.lanes[k + 1]][0] - mv.lane_offset[ln][0] if k + 1 < len(mv.lanes) else 0.0
+                if ahead > LEADER_LOOKAHEAD_M:
+                    break
+            if lead is None:
+                continue
+            if lead in index:
+                self.lead_idx[i] = index[lead]
+            else:
+                if lead not in ext_cache:
+                    xf, yf, psi = self.sumo.front_pose(lead)
+                    v, a = self.sumo.speed(lead), self.sumo.acceleration(lead)
+                    c, sn = math.cos(psi), math.sin(psi)
+                    ext_cache[lead] = (xf - p.cg_to_front * c, yf - p.cg_to_front * sn, v * c, v * sn, a * c, a * sn)
+                self.lead_idx[i] = kb.EXTERNAL_LEADER
+                self.lead_ext[i] = ext_cache[lead]
+            gap = lead_front - p.length - mv.s_of(lane, pos)  # leader's rear minus own front (same type)
+            self.gap[i] = gap
+            rec = self.records[vid]
+            rec.min_gap = min(rec.min_gap, gap)
+
+    def _collisions_geometric(self) -> None:
+        """Own collision check: oriented rectangles (length x width) of every pair of vehicles
+        closer than one length, separating-axis test; counted once per pair."""
+        ids = list(self.sumo.vehicle_ids())
+        if len(ids) < 2:
+            return
+        p = self.params
+        poses = np.array([self.sumo.front_pose(v) for v in ids])
+        c, sn = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+        cx = poses[:, 0] - 0.5 * p.length * c
+        cy = poses[:, 1] - 0.5 * p.length * sn
+        d2 = (cx[:, None] - cx[None, :]) ** 2 + (cy[:, None] - cy[None, :]) ** 2
+        ii, jj = np.nonzero(np.triu(d2 < (p.length + p.width) ** 2, 1))
+        for i, j in zip(ii, jj):
+            if _boxes_overlap(cx[i], cy[i], poses[i, 2], cx[j], cy[j], poses[j, 2], p.length, p.width):
+                self.geometric_collisions.add(tuple(sorted((ids[i], ids[j]))))
 
     def _advance(self, dt: float) -> None:
         if not self.batch_ids:
@@ -414,7 +585,7 @@ class Engine:
             raise FloatingPointError(f"vehicle state became non-finite at t={self.t:.2f} s: {', '.join(bad)}")
         for i, vid in enumerate(self.batch_ids):
             rec = self.records[vid]
-            ap = self.paths[rec.approach]
+            ap = self.paths[rec.movement]
             s_prev, s_new = rec.s_last, self.out[i, kb.OUT_S]
             if math.isnan(rec.t_merge_actual) and s_new >= ap.s_merge > s_prev:
                 rec.t_merge_actual = self.t + dt * (ap.s_merge - s_prev) / (s_new - s_prev)
@@ -433,7 +604,7 @@ class Engine:
             k = max(int(np.searchsorted(seg[:, 0], tau, side="right") - 1), 0)
             d = tau - seg[k, 0]
             ref_s[i] = self.s_enter[i] + seg[k, 1] + seg[k, 2] * d + seg[k, 3] * d * d / 2 + seg[k, 4] * d**3 / 6
-        s_c = np.array([self.paths[self.records[v].approach].s_control for v in self.batch_ids])
+        s_c = np.array([self.paths[self.records[v].movement].s_control for v in self.batch_ids])
         self.traj.append(
             t=np.full(len(self.batch_ids), self.t), vehicle_id=list(self.batch_ids), s_m=o[:, kb.OUT_S] - s_c,
             x=X[:, 0], y=X[:, 1], v_l=X[:, 2], v_n=X[:, 3], psi=X[:, 4], psi_dot=X[:, 5], a_cmd=o[:, kb.OUT_A],
@@ -469,7 +640,7 @@ class Engine:
                 continue
             x, y, vl, vn, psi = self.X[i, :5]
             self.sumo.push_pose(vid, x + cg * math.cos(psi), y + cg * math.sin(psi), psi, math.hypot(vl, vn))
-            if self.out[i, kb.OUT_S] >= self.paths[rec.approach].s_exit:
+            if self.out[i, kb.OUT_S] >= self.paths[rec.movement].s_exit:
                 self.sumo.release(vid)
                 rec.status = "released"
                 keep[i] = False
@@ -492,27 +663,45 @@ class Engine:
             self.sumo.hold_speed(vid, float(np.interp(t_next, prof[:, 0], prof[:, 1])))
 
     # ------------------------------------------------------------------ results
+    def _sumo_time_loss(self) -> dict[str, float]:
+        """SUMO's own timeLoss per finished trip (tripinfo.xml) [s]."""
+        path = self.workdir / "tripinfo.xml"
+        if not self.sc.outputs.sumo_tripinfo or not path.is_file():
+            return {}
+        import xml.etree.ElementTree as ET
+
+        try:
+            return {t.get("id"): float(t.get("timeLoss")) for t in ET.parse(path).getroot().iter("tripinfo")}
+        except ET.ParseError:  # a run that stopped early may leave it unterminated
+            return {}
+
     def _result(self, wall: float, error: BaseException | None) -> RunResult:
         for i, vid in enumerate(getattr(self, "batch_ids", [])):
             self.records[vid].acc = self.acc[i].copy()
         rows = []
         paths = getattr(self, "paths", {})
+        time_loss = self._sumo_time_loss()
         for rec in self.records.values():
-            if rec.status == "waiting" or not rec.controlled:
+            if rec.status == "waiting" or (self.control and not rec.controlled):
                 continue
-            ap = paths.get(rec.approach)
+            ap = paths.get(rec.movement)
             delay = math.nan
             if ap is not None and not math.isnan(rec.t_exit):
                 delay = float(metrics.free_flow_delay(rec.t_enter, rec.t_exit, ap.s_exit - rec.s_enter, rec.v_enter))
             admitted = not math.isnan(rec.t_enter)
-            a = rec.acc if admitted else np.full(kb.N_ACC, np.nan)
+            a = rec.acc.copy() if admitted else np.full(kb.N_ACC, np.nan)
+            if not rec.controlled:  # SUMO drove it: no tracking, no barriers
+                for k in (kb.ACC_MAX_ERR, kb.ACC_MAX_ERR_STEADY, kb.ACC_MAX_ERR_TRANSIENT, kb.ACC_MAX_LAT,
+                          kb.ACC_LONG_ACTIVE, kb.ACC_LAT_ACTIVE, kb.ACC_LONG_FALLBACK, kb.ACC_LAT_FALLBACK):
+                    a[k] = math.nan
             steps = a[kb.ACC_STEPS]
 
             def fin(v):
                 return v if np.isfinite(v) else math.nan
 
             rows.append({
-                "vehicle_id": rec.vehicle_id, "approach": rec.approach, "movement": "through",
+                "vehicle_id": rec.vehicle_id, "approach": rec.approach,
+                "movement": ap.turn if ap is not None else "",
                 "t_enter_s": rec.t_enter, "v_enter_mps": rec.v_enter, "t_merge_planned_s": rec.t_merge_planned,
                 "t_merge_actual_s": rec.t_merge_actual, "t_exit_s": rec.t_exit, "delay_s": delay,
                 "max_tracking_error_m": a[kb.ACC_MAX_ERR], "steady_tracking_error_m": a[kb.ACC_MAX_ERR_STEADY],
@@ -525,7 +714,8 @@ class Engine:
                 "cbf_lat_active_frac": a[kb.ACC_LAT_ACTIVE] / steps if steps else math.nan,
                 "cbf_long_fallbacks": a[kb.ACC_LONG_FALLBACK], "cbf_lat_fallbacks": a[kb.ACC_LAT_FALLBACK],
                 "min_h_long": fin(a[kb.ACC_MIN_H_LONG]), "min_h_lat": fin(a[kb.ACC_MIN_H_LAT]),
-                "plant_steps": steps,
+                "plant_steps": steps if rec.controlled else 0.0,
+                "t_held_s": rec.t_held, "sumo_time_loss_s": time_loss.get(rec.vehicle_id, math.nan),
                 "status": rec.status,
             })
         veh = pd.DataFrame(rows, columns=VEHICLE_COLUMNS)
@@ -535,6 +725,7 @@ class Engine:
         steps = adm["plant_steps"].sum()
         summary = {
             "scenario": self.sc.general.name,
+            "control": self.label,
             "seed": self.seed,
             "status": "ok" if error is None else "failed",
             "error": None if error is None else f"{type(error).__name__}: {error}",
@@ -546,6 +737,8 @@ class Engine:
             "vehicles_completed": int(len(done)),
             "throughput_veh_h": len(done) / sim_t * 3600.0 if sim_t > 0 else None,
             "mean_delay_s": metrics.mean_or_none(done["delay_s"]),
+            "mean_sumo_time_loss_s": metrics.mean_or_none(veh["sumo_time_loss_s"]),
+            "vehicles_held": int((veh["t_held_s"] > 0).sum()),
             "p95_delay_s": metrics.percentile_or_none(done["delay_s"], 95),
             "collisions": len(self.collision_pairs),
             "collisions_geometric": len(self.geometric_collisions),

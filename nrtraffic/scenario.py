@@ -151,6 +151,9 @@ class Demand:
 
     entry_speed_mps: float = 13.4
     mean_headway_s: float = 6.0  # 0: no random arrivals (only [[vehicles]])
+    rate_veh_h: float = 0.0  # arrivals per approach per hour; > 0 overrides mean_headway_s
+    turn_left: float = 0.0  # turning shares at a junction (straight is the rest)
+    turn_right: float = 0.0
     min_headway_s: float = 1.5
     max_vehicles: int = 0  # per approach; 0 = no limit
     begin_s: float = 0.0
@@ -163,6 +166,38 @@ class Demand:
             raise ScenarioError("demand needs 0 <= min_headway_s < mean_headway_s (or mean_headway_s = 0)")
         if self.max_vehicles < 0:
             raise ScenarioError("demand.max_vehicles must be >= 0")
+        if self.rate_veh_h < 0:
+            raise ScenarioError("demand.rate_veh_h must be >= 0")
+        if self.rate_veh_h > 0 and 3600.0 / self.rate_veh_h <= self.min_headway_s:
+            raise ScenarioError(
+                f"demand.rate_veh_h = {self.rate_veh_h} needs a mean headway above demand.min_headway_s = {self.min_headway_s} s"
+            )
+        if not (0 <= self.turn_left <= 1 and 0 <= self.turn_right <= 1 and self.turn_left + self.turn_right <= 1):
+            raise ScenarioError("demand.turn_left and demand.turn_right must be shares in [0, 1] summing to <= 1")
+
+    @property
+    def headway_s(self) -> float:
+        """Mean headway per approach [s] (0: no random arrivals)."""
+        return 3600.0 / self.rate_veh_h if self.rate_veh_h > 0 else self.mean_headway_s
+
+
+@dataclass(frozen=True)
+class Junction:
+    """``[junction]``: an intersection whose incoming edges are the approaches.
+
+    With ``id`` set, every incoming edge of that junction is an approach and every connection a
+    movement (its route: incoming edge, outgoing edge); the merging zone is the disc of diameter
+    ``zones.merging_zone_m`` around the junction centre. Two movements conflict when their paths
+    come closer than ``conflict_distance_m`` inside it (cross or merge), are on the same lane when
+    they share the incoming edge, and are compatible otherwise.
+    """
+
+    id: str = ""
+    conflict_distance_m: float = 2.5  # centre-line distance below which two paths conflict
+
+    def validate(self) -> None:
+        if self.conflict_distance_m <= 0:
+            raise ScenarioError("junction.conflict_distance_m must be > 0")
 
 
 @dataclass(frozen=True)
@@ -255,6 +290,7 @@ _SECTIONS: dict[str, type] = {
     "planning": PlanBounds,
     "coordinator": CoordinatorSettings,
     "demand": Demand,
+    "junction": Junction,
     "barriers": Barriers,
     "outputs": Outputs,
 }
@@ -272,6 +308,7 @@ class Scenario:
     planning: PlanBounds
     coordinator: CoordinatorSettings
     demand: Demand
+    junction: Junction
     barriers: Barriers
     outputs: Outputs
     approaches: tuple[Approach, ...]
@@ -403,8 +440,8 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
         )
     parts = {_ATTR[k]: _section(k, cls, data.get(k, {})) for k, cls in _SECTIONS.items()}
     appr = data.get("approaches", [])
-    if not isinstance(appr, list) or not appr:
-        raise ScenarioError("at least one [[approaches]] entry is required")
+    if not isinstance(appr, list) or (not appr and not parts["junction"].id):
+        raise ScenarioError("a scenario needs [junction] id or at least one [[approaches]] entry")
     approaches = tuple(_section("approaches", Approach, a) for a in appr)
     names = [a.name for a in approaches]
     if len(set(names)) != len(names):
@@ -414,7 +451,7 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
         raise ScenarioError("[[vehicles]] must be an array of tables")
     vehicles = tuple(_section("vehicles", ListedVehicle, v) for v in listed)
     for v in vehicles:
-        if v.approach not in names:
+        if v.approach not in names and not parts["junction"].id:
             raise ScenarioError(f"vehicles.{v.id}.approach {v.approach!r} is not an approach ({', '.join(names)})")
     ids = [v.id for v in vehicles]
     if len(set(ids)) != len(ids):

@@ -84,13 +84,35 @@ def test_trajectories_stream_to_parquet(curved_run):
     assert (out / "scenario.resolved.toml").is_file() and (out / "sumo" / "curved.net.xml").is_file()
 
 
-def test_a_failing_run_keeps_what_was_finished(tmp_path, paper_curved_path):
-    sc = scenario.load(paper_curved_path, ["coordinator.min_merge_headway_s=400.0"])
+def test_a_failing_run_keeps_what_was_finished(tmp_path, paper_curved_path, monkeypatch):
+    from nrtraffic.sumo import adapter
+
+    real_step = adapter.SumoSession.step
+
+    def failing_step(self):
+        if self.time > 20.0:
+            raise adapter.SumoError("simulated SUMO failure")
+        return real_step(self)
+
+    monkeypatch.setattr(adapter.SumoSession, "step", failing_step)
     out = tmp_path / "failed"
-    with pytest.raises(RunFailed, match="ScheduleInfeasible"):
-        run_scenario(sc, out)
+    with pytest.raises(RunFailed, match="simulated SUMO failure"):
+        run_scenario(scenario.load(paper_curved_path), out)
     s = json.loads((out / "summary.json").read_text())
-    assert s["status"] == "failed" and "main.1" in s["error"]
+    assert s["status"] == "failed" and "simulated SUMO failure" in s["error"]
+    assert s["sim_time_s"] == pytest.approx(20.0, abs=0.2)
     veh = pd.read_csv(out / "vehicles.csv")
-    assert "main.0" in set(veh["vehicle_id"])
-    pd.read_parquet(out / "trajectories.parquet")
+    assert len(veh) >= 2 and (veh["status"] == "controlled").any()
+    traj = pd.read_parquet(out / "trajectories.parquet")
+    assert traj["t"].max() == pytest.approx(20.0, abs=0.2)
+
+
+def test_an_unmeetable_schedule_holds_the_vehicle_instead_of_failing(tmp_path, paper_curved_path):
+    sc = scenario.load(paper_curved_path, ["coordinator.min_merge_headway_s=400.0", "scenario.duration_s=60.0"])
+    res = run_scenario(sc, tmp_path / "held")
+    veh = res.vehicles.set_index("vehicle_id")
+    assert veh.loc["main.0", "status"] == "released"
+    # held at the zone entry until a merge time within the bounds exists, then admitted
+    assert veh.loc["main.1", "t_held_s"] > 10.0
+    assert veh.loc["main.1", "v_enter_mps"] < 13.4
+    assert res.summary["vehicles_held"] >= 1 and res.summary["collisions"] == 0

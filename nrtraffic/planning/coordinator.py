@@ -3,21 +3,27 @@
 For vehicle ``i`` arriving at ``t0`` with speed ``v0``, ``D`` metres before the merging zone::
 
     t_m(i) = max( t0 + T_earliest(i),
-                  t_m(j) + max(h_min, delta / v_m(j))   for the last vehicle j on i's lane )
+                  t_m(j) + max(h_min, delta / v_m(j))   for the last vehicle j on i's lane,
+                  t_exit(j)                             for every earlier j on a conflicting movement )
+
+with ``t_exit(j) = t_m(j) + S(j) / v_m(j)``, ``S(j)`` the length of j's path in the merging zone:
+only one of two conflicting vehicles is in the merging zone at a time.
 
 ``T_earliest`` is ``D / v0`` (cruise at the entry speed, as Malikopoulos et al. 2018 and the paper:
 an unhindered vehicle keeps its speed) or the bound-limited minimum time, whichever is longer;
 ``delta`` is the rear-end spacing [m] and ``h_min`` a minimum merge headway [s]. The energy-optimal
 free-terminal profile for ``T = t_m - t0`` is then computed in closed form.
 
-This module handles one lane; conflicting movements add the ``t_exit(j)`` term of REFERENCE.md.
+Relations between movements come from :mod:`nrtraffic.planning.conflicts`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from nrtraffic.planning.profiles import InfeasibleProfile, PlanBounds, Profile, free_terminal, max_time, min_time
+from nrtraffic.planning.conflicts import CONFLICT
+from nrtraffic.planning.profiles import (InfeasibleProfile, PlanBounds, Profile, fixed_terminal, free_terminal, max_time,
+                                         min_time)
 
 
 class ScheduleInfeasible(InfeasibleProfile):
@@ -58,8 +64,10 @@ class Assignment:
     t_merge: float
     profile: Profile
     predecessor: str | None
-    relation: str  # "none" or "same_lane"
-    binding: str  # which term set t_merge: "earliest" or "rear_end"
+    relation: str  # relation to the predecessor: "none", "same_lane" or "conflict"
+    binding: str  # which term set t_merge: "earliest", "rear_end" or "conflict"
+    movement: str = ""
+    t_exit: float = 0.0  # planned merging-zone exit [s]
 
 
 @dataclass
@@ -68,15 +76,23 @@ class Coordinator:
 
     settings: CoordinatorSettings
     bounds: PlanBounds
+    relations: dict = field(default_factory=dict)  # (movement, movement) -> relation
     _last_on_lane: dict[str, Assignment] = field(default_factory=dict)
+    _last_on_movement: dict[str, Assignment] = field(default_factory=dict)
 
-    def schedule(self, vehicle_id: str, lane: str, t0: float, v0: float, D: float) -> Assignment:
+    def schedule(self, vehicle_id: str, lane: str, t0: float, v0: float, D: float, movement: str = "",
+                 zone_length_m: float = 0.0, v_limit: float = float("inf")) -> Assignment:
         """Assign a merge time and profile to a vehicle that entered the control zone.
 
         Parameters
         ----------
         lane : key of the lane (vehicles with the same key are rear-end constrained).
         t0 : entry time [s]; v0 : entry speed [m/s]; D : distance to the merging zone [m].
+        movement : the vehicle's movement (for the conflict relations).
+        zone_length_m : length of its path inside the merging zone [m].
+        v_limit : highest speed its path allows through the merging zone [m/s] (a turn). When the
+            free-terminal profile would arrive faster, the fixed-terminal profile to ``v_limit`` is
+            used, and the earliest arrival is uniform deceleration to it, ``2 D / (v0 + v_limit)``.
 
         Raises
         ------
@@ -86,13 +102,20 @@ class Coordinator:
         t_min = min_time(v0, D, b)
         if self.settings.earliest == "entry_speed" and v0 > 0.0:
             t_min = max(t_min, D / min(v0, b.v_max_mps))
+        if v_limit < v0:
+            t_min = max(min_time(v0, D, b), 2.0 * D / (v0 + v_limit))
         t_m, binding, pred = t0 + t_min, "earliest", None
+        relation = "none"
         prev = self._last_on_lane.get(lane)
         if prev is not None:
-            pred = prev.vehicle_id
+            pred, relation = prev.vehicle_id, "same_lane"
             gap = max(self.settings.min_merge_headway_s, self.settings.rear_end_spacing_m / prev.profile.v_m)
             if prev.t_merge + gap > t_m:
                 t_m, binding = prev.t_merge + gap, "rear_end"
+        # the latest exit of each conflicting movement binds (FIFO: all of them were scheduled earlier)
+        for other, last in self._last_on_movement.items():
+            if self.relations.get((movement, other)) == CONFLICT and last.t_exit > t_m:
+                t_m, binding, pred, relation = last.t_exit, "conflict", last.vehicle_id, "conflict"
         T = t_m - t0
         t_max = max_time(v0, D, b)
         if T > t_max + 1e-9:
@@ -102,8 +125,14 @@ class Coordinator:
             )
         try:
             prof = free_terminal(t0, v0, D, T, b)
+            if prof.v_m > v_limit + 1e-9:
+                prof = fixed_terminal(t0, v0, v_limit, D, T, b)
         except InfeasibleProfile as exc:
             raise ScheduleInfeasible(f"vehicle {vehicle_id}: {exc}") from None
-        a = Assignment(vehicle_id, lane, t0, t_m, prof, pred, "same_lane" if pred else "none", binding)
+        t_exit = t_m + zone_length_m / prof.v_m
+        a = Assignment(vehicle_id, lane, t0, t_m, prof, pred, relation, binding, movement, t_exit)
         self._last_on_lane[lane] = a
+        prev_m = self._last_on_movement.get(movement)
+        if prev_m is None or t_exit > prev_m.t_exit:
+            self._last_on_movement[movement] = a
         return a

@@ -130,6 +130,7 @@ class SumoSession:
         self.args += list(extra_args)
         self.step_length = float(step_length_s)
         self.traci = None
+        self._pending_moves = False
 
     # ---- life cycle
     def start(self) -> "SumoSession":
@@ -148,6 +149,14 @@ class SumoSession:
     def close(self) -> None:
         global _ACTIVE
         if self.traci is not None:
+            if self._pending_moves:
+                # libsumo keeps moveToXY requests in process-wide state until the next step: closing
+                # with requests pending leaves them dangling and crashes the next simulation of the
+                # process. Let SUMO consume them first.
+                try:
+                    self.traci.simulationStep()
+                except Exception:
+                    pass
             try:
                 self.traci.close()
             except Exception:
@@ -169,6 +178,7 @@ class SumoSession:
             self.traci.simulationStep()
         except Exception as exc:
             raise SumoError(f"SUMO step failed at t={self.time:.2f} s: {exc}") from None
+        self._pending_moves = False
         return self.time
 
     @property
@@ -213,6 +223,10 @@ class SumoSession:
                     via = links[0][0] if links and links[0][0].startswith(":") else None
         return out
 
+    def lane_speed(self, lane: str) -> float:
+        """Speed limit of a lane [m/s] (on junction-internal lanes SUMO derives it from the curvature)."""
+        return self.traci.lane.getMaxSpeed(lane)
+
     # ---- vehicles
     def front_pose(self, vid: str) -> tuple[float, float, float]:
         """Front-bumper position [m] and heading [rad]."""
@@ -241,6 +255,7 @@ class SumoSession:
         try:
             v.setSpeedMode(vid, 0)
             v.setSpeed(vid, max(speed, 0.0))
+            self._pending_moves = True
             v.moveToXY(vid, "", 0, x_front, y_front, nav_angle(psi), 1)
         except Exception as exc:
             raise SumoError(f"moveToXY of {vid} failed at t={self.time:.2f} s: {exc}") from None

@@ -1,0 +1,67 @@
+"""Regenerate the plain XML and networks of the junction scenarios (cross4, tee3, cross4_curved).
+
+Every arm is one lane each way, 520 m long, 50 km/h (13.89 m/s); the junction node "C" is at the
+origin. cross4_curved bends its north arm on an arc of radius 600 m. The networks are built with
+junction type "priority" (the type nrtraffic runs on: the vehicles it controls pass the junction
+under moveToXY); the baselines rebuild them with SUMO's own junction control.
+
+Run:  python sumo_scenarios/generate_junctions.py
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+from nrtraffic.sumo.netbuild import build_network
+
+HERE = Path(__file__).resolve().parent
+ARM = 520.0  # [m]
+SPEED = 13.89  # [m/s]
+CURVE_R = 600.0  # [m]
+
+
+def _arc_points(n=130):
+    """North arm of cross4_curved from C (0, 0) outwards, leaving C heading north."""
+    th_max = ARM / CURVE_R
+    return [(-CURVE_R + CURVE_R * math.cos(t), CURVE_R * math.sin(t)) for t in
+            (th_max * k / n for k in range(n + 1))]
+
+
+def write(name: str, arms: dict[str, tuple[float, float]], shapes: dict[str, list] | None = None) -> None:
+    d = HERE / name
+    d.mkdir(exist_ok=True)
+    shapes = shapes or {}
+    nodes = ['    <node id="C" x="0.0" y="0.0" type="priority"/>']
+    edges = []
+    for arm, (x, y) in arms.items():
+        nodes.append(f'    <node id="{arm}" x="{x:.4f}" y="{y:.4f}" type="priority"/>')
+        common = f'numLanes="1" speed="{SPEED}"'
+        shp_out = shp_in = ""
+        if arm in shapes:
+            pts = shapes[arm]
+            shp_out = ' shape="' + " ".join(f"{px:.4f},{py:.4f}" for px, py in pts) + '"'
+            shp_in = ' shape="' + " ".join(f"{px:.4f},{py:.4f}" for px, py in reversed(pts)) + '"'
+        edges.append(f'    <edge id="{arm}_in" from="{arm}" to="C" {common}{shp_in}/>')
+        edges.append(f'    <edge id="{arm}_out" from="C" to="{arm}" {common}{shp_out}/>')
+    (d / "net.nod.xml").write_text("<nodes>\n" + "\n".join(nodes) + "\n</nodes>\n")
+    (d / "net.edg.xml").write_text("<edges>\n" + "\n".join(edges) + "\n</edges>\n")
+    build_network(d / "net.nod.xml", d / "net.edg.xml", d / "net.net.xml")
+    (d / f"{name}.sumocfg").write_text(
+        "<configuration>\n    <!-- For viewing the network in sumo-gui; runs are driven by `nrtraffic run`. -->\n"
+        '    <input>\n        <net-file value="net.net.xml"/>\n    </input>\n'
+        '    <processing>\n        <lateral-resolution value="0.25"/>\n    </processing>\n</configuration>\n'
+    )
+
+
+def main() -> None:
+    four = {"N": (0.0, ARM), "E": (ARM, 0.0), "S": (0.0, -ARM), "W": (-ARM, 0.0)}
+    write("cross4", four)
+    write("tee3", {"E": (ARM, 0.0), "S": (0.0, -ARM), "W": (-ARM, 0.0)})
+    arc = _arc_points()
+    curved = dict(four, N=arc[-1])
+    write("cross4_curved", curved, shapes={"N": arc})
+
+
+if __name__ == "__main__":
+    main()
