@@ -255,6 +255,22 @@ class Engine:
                                  v_lim)
         return out
 
+    def _write_movements(self) -> None:
+        """``movements.json``: each movement's route, zone boundaries and its relation to the others."""
+        import json
+
+        doc = {
+            "movements": {
+                m.name: {"approach": m.approach, "turn": m.turn, "route": list(m.route),
+                         "control_zone_start_m": m.s_control, "merge_entry_m": m.s_merge, "merge_exit_m": m.s_exit,
+                         "zone_length_m": m.s_exit - m.s_merge,
+                         "v_limit_mps": None if not math.isfinite(m.v_limit) else m.v_limit}
+                for m in self.paths.values()
+            },
+            "relations": {a: {b: self.relations[(a, b)] for b in self.paths if b != a} for a in self.paths},
+        }
+        (self.workdir / "movements.json").write_text(json.dumps(doc, indent=1) + "\n")
+
     def _relations(self) -> dict:
         geo = []
         for m in self.paths.values():
@@ -298,6 +314,7 @@ class Engine:
             with self.sumo:
                 self.paths = self._paths(self.sumo)
                 self.relations = self._relations()
+                self._write_movements()
                 self.coord = Coordinator(self.sc.coordinator, self.sc.planning, self.relations)
                 self._loop()
         except (Exception, KeyboardInterrupt) as exc:  # keep what was finished

@@ -32,6 +32,21 @@ def _add_paper(sub) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+def _add_baseline(sub) -> None:
+    p = sub.add_parser("baseline", help="the same demand under SUMO's own junction control",
+                       description="Run a junction scenario's demand and seed with SUMO driving every vehicle "
+                                   "under its own junction control, into a run directory of the same form.")
+    p.add_argument("scenario", type=Path, help="scenario.toml with a [junction] (or its folder)")
+    p.add_argument("--junction", required=True, choices=["traffic_light", "priority", "allway_stop",
+                                                         "right_before_left"], help="SUMO's junction control")
+    p.add_argument("--seed", type=int, default=None, help="random seed (default: the scenario's)")
+    p.add_argument("--duration", type=float, default=None, metavar="S", help="simulated time [s]")
+    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="run directory")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override a scenario setting (repeatable)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
 def _add_bench(sub) -> None:
     p = sub.add_parser("bench", help="run the benchmarks and print their table",
                        description="Benchmark the compiled kernels and whole runs (ratios measured in one run).")
@@ -47,10 +62,12 @@ def main(argv: list[str] | None = None) -> int:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_run(sub)
     _add_paper(sub)
+    _add_baseline(sub)
     _add_bench(sub)
     args = parser.parse_args(argv)
     from nrtraffic.engine import RunFailed
     from nrtraffic.scenario import ScenarioError
+    from nrtraffic.sumo.network import NetworkError
 
     try:
         if args.command == "run":
@@ -59,11 +76,20 @@ def main(argv: list[str] | None = None) -> int:
             from runners import paper
 
             return paper.main(args)
+        if args.command == "baseline":
+            from nrtraffic import scenario
+            from runners.baseline import run_baseline
+
+            sc = scenario.load(args.scenario, args.overrides)
+            res = run_baseline(sc, args.junction, args.out, seed=args.seed, duration_s=args.duration,
+                               progress=not args.no_progress)
+            _print_summary(res.summary, args.out)
+            return 0
         if args.command == "bench":
             from runners import bench
 
             return bench.main(args)
-    except ScenarioError as exc:
+    except (ScenarioError, NetworkError) as exc:
         print(f"nrtraffic: scenario error: {exc}", file=sys.stderr)
         return 2
     except RunFailed as exc:
@@ -82,12 +108,16 @@ def _cmd_run(args) -> int:
     seed = sc.general.seed if args.seed is None else args.seed
     out = args.out or Path("runs") / f"{sc.general.name}-seed{seed}"
     res = run_scenario(sc, out, seed=seed, duration_s=args.duration, progress=not args.no_progress)
-    s = res.summary
-    keys = ["vehicles_completed", "throughput_veh_h", "mean_delay_s", "collisions", "max_tracking_error_m",
-            "steady_tracking_error_m", "max_lateral_dev_m", "min_bumper_gap_m", "real_time_factor"]
+    _print_summary(res.summary, out)
+    return 0
+
+
+def _print_summary(s: dict, out: Path) -> None:
+    keys = ["control", "vehicles_completed", "throughput_veh_h", "mean_delay_s", "mean_sumo_time_loss_s",
+            "collisions", "collisions_geometric", "max_tracking_error_m", "steady_tracking_error_m",
+            "max_lateral_dev_m", "min_bumper_gap_m", "vehicles_held", "real_time_factor"]
     print(json.dumps({k: s.get(k) for k in keys}, indent=1))
     print(f"run directory: {out}")
-    return 0
 
 
 if __name__ == "__main__":

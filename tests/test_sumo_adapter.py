@@ -68,3 +68,23 @@ def test_one_session_per_process(tmp_path, paper_curved_path):
     with SumoSession(net, routes, 0.1, 1):
         with pytest.raises(SumoError, match="already running"):
             SumoSession(net, routes, 0.1, 1).start()
+
+
+def test_split_internal_lanes_are_followed():
+    """A left turn's internal lane comes in two pieces (:C_2_0 then :C_12_0 on cross4): both are on
+    the path, and consecutive lanes join end to start."""
+    from conftest import SCENARIOS
+
+    net = SCENARIOS / "cross4" / "net.net.xml"
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as tmp:
+        routes = Path(tmp) / "r.rou.xml"
+        write_routes(routes, VehicleType(), {"l": ("N_in", "E_out")}, [])
+        with SumoSession(net, routes, 0.1, 1) as sumo:
+            lanes = sumo.route_lanes(("N_in", "E_out"))
+    internal = [ln for ln, _, _ in lanes if ln.startswith(":")]
+    assert len(internal) == 2
+    for (_, a, _), (_, b, _) in zip(lanes, lanes[1:]):
+        assert np.hypot(a[-1][0] - b[0][0], a[-1][1] - b[0][1]) < 0.01

@@ -4,10 +4,13 @@ For vehicle ``i`` arriving at ``t0`` with speed ``v0``, ``D`` metres before the 
 
     t_m(i) = max( t0 + T_earliest(i),
                   t_m(j) + max(h_min, delta / v_m(j))   for the last vehicle j on i's lane,
+                  t_exit(j) + delta / v_m(j) - S(i) / v_hi(i)   for the same j,
                   t_exit(j)                             for every earlier j on a conflicting movement )
 
 with ``t_exit(j) = t_m(j) + S(j) / v_m(j)``, ``S(j)`` the length of j's path in the merging zone:
-only one of two conflicting vehicles is in the merging zone at a time.
+only one of two conflicting vehicles is in the merging zone at a time. The third term keeps the
+spacing at the zone exit too (``v_hi(i)`` is the fastest i may cross): both cross at constant speed,
+so spacing at entry and exit means no catching up inside, even behind a slower turning vehicle.
 
 ``T_earliest`` is ``D / v0`` (cruise at the entry speed, as Malikopoulos et al. 2018 and the paper:
 an unhindered vehicle keeps its speed) or the bound-limited minimum time, whichever is longer;
@@ -109,9 +112,12 @@ class Coordinator:
         prev = self._last_on_lane.get(lane)
         if prev is not None:
             pred, relation = prev.vehicle_id, "same_lane"
-            gap = max(self.settings.min_merge_headway_s, self.settings.rear_end_spacing_m / prev.profile.v_m)
-            if prev.t_merge + gap > t_m:
-                t_m, binding = prev.t_merge + gap, "rear_end"
+            spacing_t = self.settings.rear_end_spacing_m / prev.profile.v_m
+            v_hi = min(v_limit, b.v_max_mps)
+            t_same = max(prev.t_merge + max(self.settings.min_merge_headway_s, spacing_t),
+                         prev.t_exit + spacing_t - zone_length_m / v_hi)
+            if t_same > t_m:
+                t_m, binding = t_same, "rear_end"
         # the latest exit of each conflicting movement binds (FIFO: all of them were scheduled earlier)
         for other, last in self._last_on_movement.items():
             if self.relations.get((movement, other)) == CONFLICT and last.t_exit > t_m:

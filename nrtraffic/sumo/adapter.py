@@ -216,11 +216,13 @@ class SumoSession:
                         break
                 if via is None:
                     raise SumoError(f"edge {e!r} has no connection to {nxt!r}")
-                # an internal lane may be split in several pieces (lane ids :J_n_0, followed by links)
+                # an internal lane may be split in pieces (a left turn waiting inside the junction):
+                # the next piece is the "via" of the internal lane's own link
                 while via and via.startswith(":"):
                     out.append((via, list(t.lane.getShape(via)), t.lane.getLength(via)))
                     links = t.lane.getLinks(via)
-                    via = links[0][0] if links and links[0][0].startswith(":") else None
+                    nxt = links[0][4] if links else ""
+                    via = nxt if nxt and nxt.startswith(":") else None
         return out
 
     def lane_speed(self, lane: str) -> float:
