@@ -47,6 +47,20 @@ def _add_baseline(sub) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+def _add_compare(sub) -> None:
+    p = sub.add_parser("compare", help="nrtraffic against SUMO's junction control over demands and seeds",
+                       description="Run a junction scenario under nrtraffic and SUMO's traffic_light, priority and "
+                                   "allway_stop control for each demand level and seed (in parallel processes; "
+                                   "finished runs are skipped), and write the comparison table and figure.")
+    p.add_argument("scenario", type=Path, help="scenario.toml with a [junction]")
+    p.add_argument("--rates", default="200,400,600", help="demand levels, veh/h per approach (default 200,400,600)")
+    p.add_argument("--seeds", default="1:5", help="seeds, A:B inclusive or a comma list (default 1:5)")
+    p.add_argument("--duration", type=float, default=1800.0, metavar="S", help="simulated time per run [s]")
+    p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
+    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
 def _add_bench(sub) -> None:
     p = sub.add_parser("bench", help="run the benchmarks and print their table",
                        description="Benchmark the compiled kernels and whole runs (ratios measured in one run).")
@@ -63,6 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     _add_run(sub)
     _add_paper(sub)
     _add_baseline(sub)
+    _add_compare(sub)
     _add_bench(sub)
     args = parser.parse_args(argv)
     from nrtraffic.engine import RunFailed
@@ -85,6 +100,10 @@ def main(argv: list[str] | None = None) -> int:
                                progress=not args.no_progress)
             _print_summary(res.summary, args.out)
             return 0
+        if args.command == "compare":
+            from runners import compare
+
+            return compare.main(args)
         if args.command == "bench":
             from runners import bench
 
