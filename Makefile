@@ -4,7 +4,7 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
-SCENARIO ?= sumo_scenarios/paper_curved/scenario.toml
+SCENARIO ?= sumo_scenarios/cross4/scenario.toml
 OUT    ?= runs
 
 .PHONY: install run test paper bench nets clean
@@ -31,6 +31,8 @@ bench: $(STAMP)
 
 nets: $(STAMP)
 	$(BIN)/python sumo_scenarios/paper_curved/generate.py
+	$(BIN)/python sumo_scenarios/paper_cbf/generate.py
+	$(BIN)/python sumo_scenarios/generate_junctions.py
 
 clean:
 	rm -rf $(VENV) $(OUT) .pytest_cache

@@ -91,6 +91,7 @@ class VehicleRecord:
     approach: str
     t_depart: float
     movement: str = ""
+    v_free: float = math.nan  # its free-flow speed: the speed it was sent in with [m/s]
     controlled: bool = True
     heading_offset: float = 0.0
     speed_profile: tuple = ()
@@ -293,10 +294,10 @@ class Engine:
             self._movement_table()
             demand = self._demand()
             listed = {v.id: v for v in self.sc.vehicles}
-            for vid, mv, t, _, _ in demand:
+            for vid, mv, t, speed, _ in demand:
                 lv = listed.get(vid)
                 self.records[vid] = VehicleRecord(
-                    vid, self.movement_table[mv][0], t, movement=mv,
+                    vid, self.movement_table[mv][0], t, movement=mv, v_free=speed,
                     controlled=(lv.controlled if lv else True) and self.control,
                     heading_offset=lv.entry_heading_offset_rad if lv else 0.0,
                     speed_profile=lv.speed_profile if lv else ())
@@ -704,7 +705,7 @@ class Engine:
             ap = paths.get(rec.movement)
             delay = math.nan
             if ap is not None and not math.isnan(rec.t_exit):
-                delay = float(metrics.free_flow_delay(rec.t_enter, rec.t_exit, ap.s_exit - rec.s_enter, rec.v_enter))
+                delay = float(metrics.free_flow_delay(rec.t_enter, rec.t_exit, ap.s_exit - rec.s_enter, rec.v_free))
             admitted = not math.isnan(rec.t_enter)
             a = rec.acc.copy() if admitted else np.full(kb.N_ACC, np.nan)
             if not rec.controlled:  # SUMO drove it: no tracking, no barriers

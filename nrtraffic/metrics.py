@@ -3,8 +3,9 @@
 Fuel: Kamal et al.'s polynomial as used by this line of work (REFERENCE.md section 3), in mL/s with
 ``v`` [m/s] and ``u`` [m/s^2]; the acceleration term counts only for ``u > 0``.
 Energy: ``1/2 int u^2 dt`` of the applied longitudinal acceleration [m^2/s^3].
-Delay: time lost against free flow at the entry speed,
-``(t_exit - t_enter) - (s_exit - s_enter) / v_enter`` [s].
+Delay: time lost against free flow at the speed the vehicle was sent in with (its departure speed,
+the entry speed of the demand), ``(t_exit - t_enter) - (s_exit - s_enter) / v_free`` [s]; a vehicle
+held at the control-zone entry enters slower, and that lost time counts.
 """
 
 from __future__ import annotations
