@@ -24,16 +24,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from nrtraffic.planning.conflicts import CONFLICT
 from nrtraffic.planning.profiles import (InfeasibleProfile, PlanBounds, Profile, fixed_terminal, free_terminal, max_time,
                                          min_time)
-
-
-MAX_SHIFTS = 400  # merge-time shifts tried to keep a car behind its lane predecessor
-SHIFT_S = 0.25  # [s]
-CHECK_DT_S = 0.1  # sampling of the planned trajectories for the spacing check [s]
 
 
 class ScheduleInfeasible(InfeasibleProfile):
@@ -54,9 +47,9 @@ class CoordinatorSettings:
     terminal_speed : ``"free"`` (the paper: u(t_m) = 0, a held-back car arrives slower) or
         ``"fixed"`` (cross the merging zone at the highest speed its path allows, ``min(v_max,
         turn speed)``, with the fixed-terminal profile -- slowing down and speeding up again when
-        held back -- whenever that stays within the bounds, else the free-terminal one). At a
-        junction, "free" lets held-back cars cross slowly, which holds the zone longer and
-        holds back the next ones more: throughput collapses under load.
+        held back; when that leaves the bounds the schedule is infeasible and the car waits at the
+        zone entry). At a junction, "free" lets held-back cars cross slowly, which holds the zone
+        longer and holds back the next ones more: throughput collapses under load.
     """
 
     rear_end_spacing_m: float = 10.0
@@ -138,14 +131,7 @@ class Coordinator:
         for other, last in self._last_on_movement.items():
             if self.relations.get((movement, other)) == CONFLICT and last.t_exit > t_m:
                 t_m, binding, pred, relation = last.t_exit, "conflict", last.vehicle_id, "conflict"
-        for _ in range(MAX_SHIFTS):
-            prof = self._profile(vehicle_id, t0, v0, D, t_m, v_limit)
-            if prev is None or self._keeps_behind(prof, prev.profile):
-                break
-            # the planned trajectories would close in before the merging zone: later merge time
-            t_m, binding, pred, relation = t_m + SHIFT_S, "rear_end", prev.vehicle_id, "same_lane"
-        else:
-            raise ScheduleInfeasible(f"vehicle {vehicle_id}: no merge time keeps it behind {prev.vehicle_id}")
+        prof = self._profile(vehicle_id, t0, v0, D, t_m, v_limit)
         t_exit = t_m + zone_length_m / prof.v_m
         a = Assignment(vehicle_id, lane, t0, t_m, prof, pred, relation, binding, movement, t_exit)
         self._last_on_lane[lane] = a
@@ -153,16 +139,6 @@ class Coordinator:
         if prev_m is None or t_exit > prev_m.t_exit:
             self._last_on_movement[movement] = a
         return a
-
-    def _keeps_behind(self, prof: Profile, lead: Profile) -> bool:
-        """The planned distances to the merging-zone entry stay at least the rear-end spacing apart
-        (or the gap the two entered with, if smaller) from this vehicle's entry until it reaches the
-        zone (REFERENCE.md: spacing the merge times alone does not keep the gap inside the control
-        zone)."""
-        t = np.arange(prof.t0, prof.t_m + 1e-9, CHECK_DT_S)
-        gap = (prof.D - prof.evaluate(t)[0]) - (lead.D - lead.evaluate(t)[0])
-        need = min(self.settings.rear_end_spacing_m, gap[0])
-        return bool(np.all(gap >= need - 1e-6))
 
     def _profile(self, vehicle_id: str, t0: float, v0: float, D: float, t_m: float, v_limit: float) -> Profile:
         b = self.bounds
@@ -173,17 +149,13 @@ class Coordinator:
                 f"vehicle {vehicle_id}: merge time {t_m:.2f} s needs {T:.2f} s for {D:.1f} m, "
                 f"but at v >= {b.v_min_mps} m/s it arrives by {t_max:.2f} s"
             )
-        prof = None
-        if self.settings.terminal_speed == "fixed":
-            try:
-                prof = fixed_terminal(t0, v0, min(v_limit, b.v_max_mps), D, T, b)
-            except InfeasibleProfile:
-                prof = None
         try:
-            if prof is None:
-                prof = free_terminal(t0, v0, D, T, b)
-                if prof.v_m > v_limit + 1e-9:
-                    prof = fixed_terminal(t0, v0, v_limit, D, T, b)
+            if self.settings.terminal_speed == "fixed":
+                # no slow crossing: a car that cannot make it at full (turn) speed waits at the entry
+                return fixed_terminal(t0, v0, min(v_limit, b.v_max_mps), D, T, b)
+            prof = free_terminal(t0, v0, D, T, b)
+            if prof.v_m > v_limit + 1e-9:
+                prof = fixed_terminal(t0, v0, v_limit, D, T, b)
         except InfeasibleProfile as exc:
             raise ScheduleInfeasible(f"vehicle {vehicle_id}: {exc}") from None
         return prof
