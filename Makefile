@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 SCENARIO ?= sumo_scenarios/cross4/scenario.toml
 OUT    ?= runs
 
-.PHONY: install run test paper bench nets clean
+.PHONY: install run test paper bench nets clean clean-cache
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -34,5 +34,9 @@ nets: $(STAMP)
 	$(BIN)/python sumo_scenarios/paper_cbf/generate.py
 	$(BIN)/python sumo_scenarios/generate_junctions.py
 
-clean:
+# numba's on-disk cache does not notice edits in the modules a kernel calls: clear it after editing
+clean-cache:
+	find nrtraffic -name '*.nbi' -delete -o -name '*.nbc' -delete
+
+clean: clean-cache
 	rm -rf $(VENV) $(OUT) .pytest_cache

@@ -168,7 +168,7 @@ def run_cbf(out: Path, seed: int | None = None, progress: bool = True) -> dict:
 
 
 def _cbf_table(r: dict, sweep: dict, base, d0: float, tr: dict) -> str:
-    wo, w, nw = r["without_cbf"], r["with_cbf"], r["with_cbf_no_antiwindup"]
+    wo, w = r["without_cbf"], r["with_cbf"]
     rows = []
 
     def row(what, paper, measured, ok):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 from pathlib import Path
 
@@ -29,8 +30,6 @@ def run_scenario(sc: scenario_mod.Scenario, out: Path, seed: int | None = None, 
     out = prepare_run_dir(sc, out)
     seed = sc.general.seed if seed is None else seed
     # record the configuration that produced the run, with the seed and duration actually used
-    import dataclasses
-
     general = dataclasses.replace(sc.general, seed=int(seed),
                                   duration_s=float(sc.general.duration_s if duration_s is None else duration_s))
     resolved = dataclasses.replace(sc, general=general)

@@ -2,7 +2,6 @@
 and the baselines' delay against SUMO's timeLoss."""
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -96,7 +95,6 @@ def test_conflict_classification_agrees_with_sumo_junction_logic(tmp_path_factor
         owner = {ln: k for k, lns in internal.items() for ln in lns}
         foes = {k: {owner[f] for ln in lns for f in libsumo.lane.getInternalFoes(ln) if f in owner}
                 for k, lns in internal.items()}
-        shapes = {k: np.array([pt for _, shape, _ in v for pt in shape]) for k, v in lanes.items()}
     stricter = 0
     for a in mv:
         for b in mv:
