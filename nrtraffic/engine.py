@@ -174,6 +174,7 @@ class Engine:
         self.records: dict[str, VehicleRecord] = {}
         self.collision_pairs: set[tuple[str, str]] = set()
         self.geometric_collisions: set[tuple[str, str]] = set()
+        self.collision_log: list[dict] = []  # first contact of each pair: time, ids, who saw it
         self.t = 0.0
 
     # ------------------------------------------------------------------ set-up
@@ -386,8 +387,11 @@ class Engine:
                 self._push_and_release()
                 self._script(scripted, self.t + dt)
                 self.sumo.step()
-                for a, b, _ in self.sumo.collisions():
-                    self.collision_pairs.add(tuple(sorted((a, b))))
+                for a, b, kind in self.sumo.collisions():
+                    pair = tuple(sorted((a, b)))
+                    if pair not in self.collision_pairs:
+                        self.collision_pairs.add(pair)
+                        self.collision_log.append({"t": self.sumo.time, "pair": list(pair), "source": f"sumo:{kind}"})
                 step += 1
                 bar.update(dt)
             self.t = self.sumo.time
@@ -590,7 +594,10 @@ class Engine:
         ii, jj = np.nonzero(np.triu(d2 < (p.length + p.width) ** 2, 1))
         for i, j in zip(ii, jj):
             if _boxes_overlap(cx[i], cy[i], poses[i, 2], cx[j], cy[j], poses[j, 2], p.length, p.width):
-                self.geometric_collisions.add(tuple(sorted((ids[i], ids[j]))))
+                pair = tuple(sorted((ids[i], ids[j])))
+                if pair not in self.geometric_collisions:
+                    self.geometric_collisions.add(pair)
+                    self.collision_log.append({"t": self.t, "pair": list(pair), "source": "geometric"})
 
     def _advance(self, dt: float) -> None:
         if not self.batch_ids:
@@ -760,6 +767,7 @@ class Engine:
             "p95_delay_s": metrics.percentile_or_none(done["delay_s"], 95),
             "collisions": len(self.collision_pairs),
             "collisions_geometric": len(self.geometric_collisions),
+            "collision_events": self.collision_log[:100],
             "min_center_distance_m": metrics.min_or_none(adm["min_center_distance_m"]),
             "min_bumper_gap_m": metrics.min_or_none(adm["min_bumper_gap_m"]),
             "max_tracking_error_m": metrics.max_or_none(adm["max_tracking_error_m"]),
