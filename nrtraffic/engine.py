@@ -345,7 +345,7 @@ class Engine:
         total = self.duration if self.duration > 0 else None
         fmt = ("{l_bar}{bar}| {n:.0f}/{total:.0f} sim s [{elapsed}<{remaining}]" if total
                else "{desc}: {n:.0f} sim s [{elapsed}, {rate_fmt}]")
-        bar = tqdm(total=total, desc=sc.general.name, unit="sim s", disable=not self.progress, leave=False,
+        bar = tqdm(total=total, desc=sc.general.name, unit="sim s", disable=None if self.progress else True, leave=False,
                    bar_format=fmt)
         try:
             while True:

@@ -59,7 +59,7 @@ def run_compare(scenario_path: Path, rates: list[float], seeds: list[int], out: 
                         rows.append(_row(rate, seed, control, s))
                         continue
                 jobs.append((str(scenario_path), rate, seed, control, duration, str(d)))
-    bar = tqdm(total=len(jobs), desc="runs", disable=not progress)
+    bar = tqdm(total=len(jobs), desc="runs", disable=None if progress else True)
     with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn"), max_tasks_per_child=1) as ex:
         futs = {ex.submit(_one, *j): j for j in jobs}
         for f in as_completed(futs):
