@@ -41,7 +41,9 @@ class LanePath:
         if len(pts) < 2:
             raise ValueError("a lane path needs at least two distinct points")
         if smooth_spacing is not None and len(pts) > 2:
-            pts = _dedupe(_catmull_rom(pts, smooth_spacing), min_spacing)
+            # densify first: a spline through a 500 m straight followed by a 2 m junction piece bows
+            # the straight by most of a metre; with short segments it only rounds the corners
+            pts = _dedupe(_catmull_rom(_densify(pts, SMOOTH_MAX_SEGMENT_M), smooth_spacing), min_spacing)
         seg = np.hypot(*np.diff(pts, axis=0).T)
         s = np.concatenate([[0.0], np.cumsum(seg)])
         pts.setflags(write=False)
@@ -94,6 +96,18 @@ class LanePath:
         s = self.s[k] + t_in[k] * seg
         cross = d[k, 0] * (q[1] - a[k, 1]) - d[k, 1] * (q[0] - a[k, 0])
         return float(s), float(cross / seg)
+
+
+SMOOTH_MAX_SEGMENT_M = 2.0  # longest segment the spline sees [m]
+
+
+def _densify(pts: np.ndarray, max_segment: float) -> np.ndarray:
+    """Insert points on every segment longer than ``max_segment`` (straight, evenly spaced)."""
+    out = [pts[:1]]
+    for a, b in zip(pts[:-1], pts[1:]):
+        n = max(1, int(np.ceil(np.hypot(*(b - a)) / max_segment)))
+        out.append(a + (b - a) * (np.arange(1, n + 1) / n)[:, None])
+    return np.vstack(out)
 
 
 def _dedupe(pts: np.ndarray, min_spacing: float) -> np.ndarray:
