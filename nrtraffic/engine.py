@@ -26,6 +26,7 @@ from nrtraffic.demand import shifted_exponential_arrivals
 from nrtraffic.geometry import LanePath
 from nrtraffic.planning.conflicts import MovementGeometry, classify
 from nrtraffic.planning.coordinator import Coordinator, ScheduleInfeasible
+from nrtraffic.planning.profiles import packed_position
 from nrtraffic.results import VEHICLE_COLUMNS, RunResult, TrajectoryWriter
 from nrtraffic.scenario import Scenario
 from nrtraffic.sumo.adapter import SumoSession, VehicleType, sumo_version, write_routes
@@ -622,13 +623,8 @@ class Engine:
         if self.traj is None or not self.batch_ids:
             return
         X, U, o = self.X, self.U, self.out
-        ref_s = np.empty(len(self.batch_ids))
-        for i in range(len(self.batch_ids)):
-            seg = self.prof[i]
-            tau = self.t - self.t_enter[i]
-            k = max(int(np.searchsorted(seg[:, 0], tau, side="right") - 1), 0)
-            d = tau - seg[k, 0]
-            ref_s[i] = self.s_enter[i] + seg[k, 1] + seg[k, 2] * d + seg[k, 3] * d * d / 2 + seg[k, 4] * d**3 / 6
+        ref_s = np.array([self.s_enter[i] + packed_position(self.prof[i], self.t - self.t_enter[i])
+                          for i in range(len(self.batch_ids))])
         s_c = np.array([self.paths[self.records[v].movement].s_control for v in self.batch_ids])
         self.traj.append(
             t=np.full(len(self.batch_ids), self.t), vehicle_id=list(self.batch_ids), s_m=o[:, kb.OUT_S] - s_c,

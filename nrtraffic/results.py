@@ -128,14 +128,6 @@ def write_vehicles(path: Path, vehicles: pd.DataFrame) -> None:
     vehicles.to_csv(path, index=False, float_format="%.6g")
 
 
-def read_run(run_dir: Path) -> RunResult:
-    """Load a run directory's summary and vehicles."""
-    run_dir = Path(run_dir)
-    summary = json.loads((run_dir / "summary.json").read_text())
-    vehicles = pd.read_csv(run_dir / "vehicles.csv")
-    return RunResult(summary, vehicles, run_dir)
-
-
 def read_trajectories(run_dir: Path) -> pd.DataFrame:
     return pd.read_parquet(Path(run_dir) / "trajectories.parquet")
 

@@ -27,20 +27,28 @@ def run_scenario(sc: scenario_mod.Scenario, out: Path, seed: int | None = None, 
                  progress: bool = False) -> RunResult:
     """Run ``sc`` and write the run directory ``out``; raises :class:`RunFailed` after writing what
     was finished when the run stops early."""
-    out = prepare_run_dir(sc, out)
+    return execute(sc, prepare_run_dir(sc, out), seed, duration_s, progress)
+
+
+def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: float | None, progress: bool,
+            extra_summary: dict | None = None, **engine_options) -> RunResult:
+    """Record the configuration actually used (seed, duration) in ``scenario.resolved.toml``, run
+    the engine (``engine_options`` go to :class:`Engine`) and write the results into the prepared
+    run directory ``out``, also when the run stops early."""
     seed = sc.general.seed if seed is None else seed
-    # record the configuration that produced the run, with the seed and duration actually used
     general = dataclasses.replace(sc.general, seed=int(seed),
                                   duration_s=float(sc.general.duration_s if duration_s is None else duration_s))
     resolved = dataclasses.replace(sc, general=general)
     scenario_mod.dump(resolved, out / "scenario.resolved.toml", network=f"sumo/{sc.network_path.name}")
     writer = TrajectoryWriter(out / "trajectories.parquet")
-    engine = Engine(resolved, out, trajectories=writer, progress=progress)
+    engine = Engine(resolved, out, trajectories=writer, progress=progress, **engine_options)
     try:
         result = engine.run()
     except RunFailed as exc:
+        exc.result.summary.update(extra_summary or {})
         _write(exc.result, out)
         raise
+    result.summary.update(extra_summary or {})
     _write(result, out)
     return result
 

@@ -141,9 +141,9 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
             u_app[1] = u[1]
             pinned_a = False
             pinned_d = False
+            tx, ty, curv = _tangent_curvature(xy, s, hint[i])
             # ---- lateral barrier: bisection on the steering
             if cbf_lat:
-                tx, ty, curv = _tangent_curvature(xy, s, hint[i])
                 d, st, hl = cbf.lat_filter(x, u_app[0], u_app[1], plant_p, out[i, OUT_LAT], tx, ty, curv,
                                            cfg[CFG_Y_MAX], cfg[CFG_K_LAT], cfg[CFG_GAMMA], u_hi[1], cfg[CFG_BISECT_TOL])
                 u_app[1] = d
@@ -201,7 +201,6 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
             if anti_windup:
                 u[0] = u_app[0]
                 u[1] = u_app[1]
-                tx, ty, _ = _tangent_curvature(xy, s, hint[i])
                 nr_update(x, u, pred_p, ref[0], horizon, cfg[CFG_DT_PRED], cfg[CFG_ALPHA], cfg[CFG_DAMPING], h,
                           u_lo, u_hi, u_new, not pinned_a, not pinned_d, tx, ty)
             else:

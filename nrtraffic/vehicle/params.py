@@ -74,12 +74,11 @@ class BicycleParams:
         return replace(self, m=self.m * factor)
 
     def as_array(self) -> np.ndarray:
-        """Packed for the compiled kernels (order: see :data:`PARAM_INDEX`)."""
+        """Packed for the compiled kernels (order: :data:`PARAM_NAMES`)."""
         return np.array([getattr(self, n) for n in PARAM_NAMES], dtype=np.float64)
 
 
 PARAM_NAMES = ("m", "Iz", "lf", "lr", "Caf", "Car", "v_blend_low", "v_blend_high", "tau_kin")
-PARAM_INDEX = {n: i for i, n in enumerate(PARAM_NAMES)}
 
 PRESETS: dict[str, BicycleParams] = {
     # Shivam et al. 2020, section 4 (after Kong et al. 2015); body size of a mid-size car.
