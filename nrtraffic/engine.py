@@ -24,15 +24,15 @@ from nrtraffic import __version__, metrics
 from nrtraffic.control import batch as kb
 from nrtraffic.demand import shifted_exponential_arrivals
 from nrtraffic.geometry import LanePath
-from nrtraffic.planning.conflicts import MovementGeometry, classify
-from nrtraffic.planning.coordinator import Coordinator, ScheduleInfeasible
+from nrtraffic.planning.conflicts import MovementGeometry, classify, headings
+from nrtraffic.planning.coordinator import REAR_END_TOL_M, Coordinator, ScheduleInfeasible
 from nrtraffic.planning.profiles import packed_position
 from nrtraffic.results import VEHICLE_COLUMNS, RunResult, TrajectoryWriter
 from nrtraffic.scenario import Scenario
 from nrtraffic.sumo.adapter import SumoSession, VehicleType, sumo_version, write_routes
 from nrtraffic.sumo.network import junction_movements
 
-N_PROFILE_SEG = 5  # packed profile segments (at most 3 arcs + cruise, padded)
+N_PROFILE_SEG = 81  # packed profile segments (closed forms: at most 3 arcs + cruise; rear-end QP: 80 + cruise)
 STEADY_AFTER_S = 3.0  # DESIGN.md: steady-state tracking error counts after 3 s under control
 PATH_SPACING_M = 0.25  # sampling of the smoothed lane paths [m]
 LEADER_LOOKAHEAD_M = 200.0  # how far along its path a vehicle looks for its leader [m]
@@ -51,6 +51,25 @@ def _boxes_overlap(x1, y1, h1, x2, y2, h2, length, width) -> bool:
         if abs(dx * ax + dy * ay) > r1 + r2:
             return False
     return True
+
+
+def _curve_speed(path, s_from: float, s_to: float, a_lat: float, window_m: float = 2.0) -> float:
+    """Highest constant speed [m/s] on ``[s_from, s_to]`` of ``path`` at lateral acceleration
+    ``a_lat`` [m/s^2]: ``sqrt(a_lat / kappa_max)``, the curvature [1/m] averaged over ``window_m``
+    (inf when ``a_lat`` is 0, no bound, or the path is straight)."""
+    if a_lat <= 0.0:
+        return math.inf
+    sel = (path.s >= s_from) & (path.s <= s_to)
+    if sel.sum() < 3:
+        return math.inf
+    h = np.unwrap(headings(path.xy[sel]))
+    s = path.s[sel]
+    n = max(1, int(round(window_m / max(float(np.median(np.diff(s))), 1e-6))))
+    if len(s) <= n:
+        return math.inf
+    kappa = np.abs(h[n:] - h[:-n]) / (s[n:] - s[:-n])
+    k_max = float(kappa.max())
+    return math.sqrt(a_lat / k_max) if k_max > 1e-9 else math.inf
 
 
 class RunFailed(RuntimeError):
@@ -108,6 +127,7 @@ class VehicleRecord:
     relation: str = ""
     binding: str = ""
     profile_kind: str = ""
+    plan_intrusion: float = math.nan
     acc: np.ndarray = field(default_factory=lambda: kb.new_acc(1)[0])
     min_gap: float = math.inf
     s_last: float = math.nan
@@ -254,6 +274,7 @@ class Engine:
             if s_x > path.length:
                 raise ValueError(f"movement {name}: the merging zone runs past the end of the route")
             v_lim = min(sumo.lane_speed(ln) for ln, _, _ in lanes) if self.junction_xy is not None else math.inf
+            v_lim = min(v_lim, _curve_speed(path, s_m, s_x, self.sc.planning.max_lateral_accel_mps2))
             out[name] = Movement(name, appr, turn, route, path, [ln for ln, _, _ in lanes], offsets, s_c, s_m, s_x,
                                  v_lim)
         return out
@@ -278,8 +299,12 @@ class Engine:
         geo = []
         for m in self.paths.values():
             sel = (m.path.s >= m.s_merge) & (m.path.s <= m.s_exit)
-            geo.append(MovementGeometry(m.name, m.lanes[0], m.lanes[-1], m.path.xy[sel]))
-        return classify(geo, self.sc.junction.conflict_distance_m)
+            # the path carries the centre of gravity; the body's centre is ahead of it by this [m]
+            ahead = self.params.cg_to_front - 0.5 * self.params.length
+            h = headings(m.path.xy[sel])
+            centre = m.path.xy[sel] + ahead * np.stack([np.cos(h), np.sin(h)], -1)
+            geo.append(MovementGeometry(m.name, m.lanes[0], m.lanes[-1], centre))
+        return classify(geo, self.params.length, self.params.width, self.sc.junction.lateral_clearance_m)
 
     # ------------------------------------------------------------------ run
     def run(self) -> RunResult:
@@ -478,6 +503,7 @@ class Engine:
         rec.t_merge_planned, rec.v_merge_planned = asg.t_merge, asg.profile.v_m
         rec.predecessor, rec.relation, rec.binding = asg.predecessor, asg.relation, asg.binding
         rec.profile_kind = asg.profile.kind
+        rec.plan_intrusion = asg.plan_intrusion_m
         rec.s_last = s_proj
         hint = int(np.clip(np.searchsorted(mv.path.s, s_proj) - 1, 0, len(mv.path.s) - 2))
         self._append(vid, x0, asg.profile.packed(N_PROFILE_SEG), self.t, s_proj, lat0, mv.path.xy_at(s_proj),
@@ -729,7 +755,8 @@ class Engine:
                 "transient_tracking_error_m": a[kb.ACC_MAX_ERR_TRANSIENT], "max_lateral_dev_m": a[kb.ACC_MAX_LAT],
                 "min_bumper_gap_m": fin(rec.min_gap), "energy_u2": a[kb.ACC_ENERGY], "fuel_ml": a[kb.ACC_FUEL],
                 "predecessor": rec.predecessor or "", "relation": rec.relation, "binding": rec.binding,
-                "profile": rec.profile_kind, "v_merge_planned_mps": rec.v_merge_planned,
+                "profile": rec.profile_kind, "plan_rear_end_intrusion_m": rec.plan_intrusion,
+                "v_merge_planned_mps": rec.v_merge_planned,
                 "min_center_distance_m": fin(a[kb.ACC_MIN_CENTER]), "max_abs_accel_mps2": a[kb.ACC_MAX_ABS_A],
                 "cbf_long_active_frac": a[kb.ACC_LONG_ACTIVE] / steps if steps else math.nan,
                 "cbf_lat_active_frac": a[kb.ACC_LAT_ACTIVE] / steps if steps else math.nan,
@@ -760,6 +787,8 @@ class Engine:
             "mean_delay_s": metrics.mean_or_none(done["delay_s"]),
             "mean_sumo_time_loss_s": metrics.mean_or_none(veh["sumo_time_loss_s"]),
             "vehicles_held": int((veh["t_held_s"] > 0).sum()),
+            "plans_rear_end_constrained": int((adm["profile"] == "rear_end").sum()),
+            "plans_rear_end_unresolved": int((adm["plan_rear_end_intrusion_m"] > REAR_END_TOL_M).sum()),
             "p95_delay_s": metrics.percentile_or_none(done["delay_s"], 95),
             "collisions": len(self.collision_pairs),
             "collisions_geometric": len(self.geometric_collisions),

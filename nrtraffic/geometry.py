@@ -102,11 +102,20 @@ SMOOTH_MAX_SEGMENT_M = 2.0  # longest segment the spline sees [m]
 
 
 def _densify(pts: np.ndarray, max_segment: float) -> np.ndarray:
-    """Insert points on every segment longer than ``max_segment`` (straight, evenly spaced)."""
+    """On every segment longer than ``3 max_segment``, insert a point ``max_segment`` from each end.
+
+    A Catmull-Rom piece depends on four consecutive points: the long middle part then has
+    collinear neighbours and stays straight, and the rounding of each corner is confined to the
+    short end pieces. Short segments (the vertices of a junction's arcs) are left alone, so the
+    spline follows the arc through them; splitting those too would put straight chords between
+    sharp corners."""
     out = [pts[:1]]
     for a, b in zip(pts[:-1], pts[1:]):
-        n = max(1, int(np.ceil(np.hypot(*(b - a)) / max_segment)))
-        out.append(a + (b - a) * (np.arange(1, n + 1) / n)[:, None])
+        L = float(np.hypot(*(b - a)))
+        if L > 3.0 * max_segment:
+            f = max_segment / L
+            out.append(np.vstack([a + f * (b - a), b - f * (b - a)]))
+        out.append(b[None, :])
     return np.vstack(out)
 
 

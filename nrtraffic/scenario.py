@@ -187,17 +187,18 @@ class Junction:
 
     With ``id`` set, every incoming edge of that junction is an approach and every connection a
     movement (its route: incoming edge, outgoing edge); the merging zone is the disc of diameter
-    ``zones.merging_zone_m`` around the junction centre. Two movements conflict when their paths
-    come closer than ``conflict_distance_m`` inside it (cross or merge), are on the same lane when
-    they share the incoming edge, and are compatible otherwise.
+    ``zones.merging_zone_m`` around the junction centre. Two movements conflict when they leave on
+    the same lane or when the areas their car bodies sweep inside the zone overlap, each body
+    widened by ``lateral_clearance_m`` on both sides; they are on the same lane when they share the
+    incoming lane, and compatible otherwise (planning/conflicts.py).
     """
 
     id: str = ""
-    conflict_distance_m: float = 2.5  # centre-line distance below which two paths conflict
+    lateral_clearance_m: float = 0.5  # [m] band each car may leave its centre line by (barriers.max_lateral_dev_m)
 
     def validate(self) -> None:
-        if self.conflict_distance_m <= 0:
-            raise ScenarioError("junction.conflict_distance_m must be > 0")
+        if self.lateral_clearance_m < 0:
+            raise ScenarioError("junction.lateral_clearance_m must be >= 0")
 
 
 @dataclass(frozen=True)

@@ -3,10 +3,16 @@
 Two movements are
 
 - ``same_lane`` when they enter on the same lane (rear-end spacing applies),
-- ``conflict`` when their centre lines inside the merging zone come closer than a distance (they
-  cross) or they leave on the same lane (they merge): only one of them may be in the merging zone
-  at a time,
+- ``conflict`` when they leave on the same lane (they merge), or when the areas their car bodies
+  sweep inside the merging zone overlap (they cross or pass too close): only one of them may be in
+  the merging zone at a time,
 - ``compatible`` otherwise (no constraint between them).
+
+The swept area of a movement is the union of the car's rectangle (length x width, widened by a
+lateral clearance on each side: the band the car may leave its centre line by) placed at every
+sampled point of the path inside the zone, along the path's heading. A test of centre-line
+distance alone is not enough: two cars crossing at an angle touch corner to side while their
+centre lines stay more than a car width apart.
 """
 
 from __future__ import annotations
@@ -21,7 +27,8 @@ SAME_LANE, CONFLICT, COMPATIBLE = "same_lane", "conflict", "compatible"
 @dataclass(frozen=True)
 class MovementGeometry:
     """What the classification needs of a movement: its entry lane, exit lane and the points of
-    its path inside the merging zone [m]."""
+    its path (the car's centre) inside the merging zone [m], densely sampled (no more than about
+    a quarter of the car's width apart)."""
 
     name: str
     entry_lane: str
@@ -37,8 +44,52 @@ def min_distance(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.sqrt(np.min(np.einsum("ijk,ijk->ij", d, d))))
 
 
-def classify(movements: list[MovementGeometry], conflict_distance_m: float) -> dict[tuple[str, str], str]:
-    """Relation of every ordered pair of distinct movements."""
+def headings(points: np.ndarray) -> np.ndarray:
+    """Heading [rad] of a polyline at each point (central differences)."""
+    if len(points) < 2:
+        return np.zeros(len(points))
+    d = np.gradient(points, axis=0)
+    return np.arctan2(d[:, 1], d[:, 0])
+
+
+def boxes_overlap(c1: np.ndarray, h1: np.ndarray, c2: np.ndarray, h2: np.ndarray, length: float,
+                  width: float) -> np.ndarray:
+    """Separating-axis test of rectangles of one size (``length`` x ``width`` [m]) with centres
+    ``c1``, ``c2`` (..., 2) [m] and headings ``h1``, ``h2`` [rad], broadcast against each other.
+    True where they overlap (touching counts)."""
+    u1 = np.stack([np.cos(h1), np.sin(h1)], -1)
+    u2 = np.stack([np.cos(h2), np.sin(h2)], -1)
+    n1 = np.stack([-u1[..., 1], u1[..., 0]], -1)
+    n2 = np.stack([-u2[..., 1], u2[..., 0]], -1)
+    d = c2 - c1
+    hl, hw = 0.5 * length, 0.5 * width
+    overlap = np.ones(np.broadcast_shapes(d.shape[:-1], u1.shape[:-1], u2.shape[:-1]), dtype=bool)
+    for ax in (u1, n1, u2, n2):
+        r1 = hl * np.abs(np.sum(u1 * ax, -1)) + hw * np.abs(np.sum(n1 * ax, -1))
+        r2 = hl * np.abs(np.sum(u2 * ax, -1)) + hw * np.abs(np.sum(n2 * ax, -1))
+        overlap &= np.abs(np.sum(d * ax, -1)) <= r1 + r2
+    return overlap
+
+
+def swept_overlap(a: np.ndarray, b: np.ndarray, length: float, width: float) -> bool:
+    """Whether a car of ``length`` x ``width`` [m] following polyline ``a`` and one following
+    ``b`` can touch anywhere along them (each at any of its sampled positions)."""
+    if len(a) == 0 or len(b) == 0:
+        return False
+    ha, hb = headings(a), headings(b)
+    d2 = np.sum((a[:, None, :] - b[None, :, :]) ** 2, -1)
+    reach = float(np.hypot(length, width))  # two circumscribed circles' radii
+    ii, jj = np.nonzero(d2 <= reach * reach)
+    if ii.size == 0:
+        return False
+    return bool(np.any(boxes_overlap(a[ii], ha[ii], b[jj], hb[jj], length, width)))
+
+
+def classify(movements: list[MovementGeometry], length_m: float, width_m: float,
+             lateral_clearance_m: float) -> dict[tuple[str, str], str]:
+    """Relation of every ordered pair of distinct movements, for cars of ``length_m`` x
+    ``width_m`` [m] that may leave their centre line by up to ``lateral_clearance_m`` [m]."""
+    width = width_m + 2.0 * lateral_clearance_m
     out: dict[tuple[str, str], str] = {}
     for i, a in enumerate(movements):
         for b in movements[i + 1:]:
@@ -46,7 +97,7 @@ def classify(movements: list[MovementGeometry], conflict_distance_m: float) -> d
                 rel = SAME_LANE
             elif a.exit_lane == b.exit_lane:
                 rel = CONFLICT
-            elif min_distance(a.zone_points, b.zone_points) < conflict_distance_m:
+            elif swept_overlap(a.zone_points, b.zone_points, length_m, width):
                 rel = CONFLICT
             else:
                 rel = COMPATIBLE

@@ -3,14 +3,23 @@
 For vehicle ``i`` arriving at ``t0`` with speed ``v0``, ``D`` metres before the merging zone::
 
     t_m(i) = max( t0 + T_earliest(i),
-                  t_m(j) + max(h_min, delta / v_m(j))   for the last vehicle j on i's lane,
-                  t_exit(j) + delta / v_m(j) - S(i) / v_hi(i)   for the same j,
+                  t_m(j) + max(h_min, delta / v_s)      for the last vehicle j on i's lane,
+                  t_exit(j) + delta / v_s - S(i) / v_hi(i)      for the same j,
                   t_exit(j)                             for every earlier j on a conflicting movement )
 
-with ``t_exit(j) = t_m(j) + S(j) / v_m(j)``, ``S(j)`` the length of j's path in the merging zone:
+with ``t_exit(j) = t_m(j) + S(j) / v_m(j)``, ``S(j)`` the length of j's path in the merging zone,
+``v_s = min(v_m(j), v_hi(i))`` the slower of the two crossing speeds:
 only one of two conflicting vehicles is in the merging zone at a time. The third term keeps the
 spacing at the zone exit too (``v_hi(i)`` is the fastest i may cross): both cross at constant speed,
 so spacing at entry and exit means no catching up inside, even behind a slower turning vehicle.
+
+Spacing at the entry and exit of the merging zone does not keep the planned trajectories apart on
+the way to it: a follower can catch up with a leader whose plan slows down deeply (held back by a
+conflict). When the closed-form profile comes closer than ``delta`` to the leader's plan anywhere
+before its own merge time (the leader's plan continues at constant speed past its merge), it is replaced by the energy-optimal profile with that rear-end
+constraint (:func:`~nrtraffic.planning.profiles.rear_end_constrained`, a QP); if that QP has no
+solution, the closed form is kept, its intrusion into the gap is recorded, and the longitudinal
+barrier keeps the cars apart.
 
 ``T_earliest`` is ``D / v0`` (cruise at the entry speed, as Malikopoulos et al. 2018 and the paper:
 an unhindered vehicle keeps its speed) or the bound-limited minimum time, whichever is longer;
@@ -26,7 +35,12 @@ from dataclasses import dataclass, field
 
 from nrtraffic.planning.conflicts import CONFLICT
 from nrtraffic.planning.profiles import (InfeasibleProfile, PlanBounds, Profile, fixed_terminal, free_terminal, max_time,
-                                         min_time)
+                                         min_time, rear_end_constrained, rear_end_violation)
+
+
+# the rear-end constrained profile holds the gap at its grid instants (0.5 s apart); between them it
+# may enter the gap by millimetres. A plan that enters it by more is counted as unresolved [m].
+REAR_END_TOL_M = 0.05
 
 
 class ScheduleInfeasible(InfeasibleProfile):
@@ -80,6 +94,7 @@ class Assignment:
     binding: str  # which term set t_merge: "earliest", "rear_end" or "conflict"
     movement: str = ""
     t_exit: float = 0.0  # planned merging-zone exit [s]
+    plan_intrusion_m: float = float("nan")  # how far the plan enters the gap behind the lane leader's plan [m]
 
 
 @dataclass
@@ -121,8 +136,10 @@ class Coordinator:
         prev = self._last_on_lane.get(lane)
         if prev is not None:
             pred, relation = prev.vehicle_id, "same_lane"
-            spacing_t = self.settings.rear_end_spacing_m / prev.profile.v_m
+            # delta at the zone entry, at the slower of the two crossing speeds: when this vehicle is
+            # the slower, the gap is delta at the leader's merge time (and grows after it)
             v_hi = min(v_limit, b.v_max_mps)
+            spacing_t = self.settings.rear_end_spacing_m / min(prev.profile.v_m, v_hi)
             t_same = max(prev.t_merge + max(self.settings.min_merge_headway_s, spacing_t),
                          prev.t_exit + spacing_t - zone_length_m / v_hi)
             if t_same > t_m:
@@ -132,13 +149,39 @@ class Coordinator:
             if self.relations.get((movement, other)) == CONFLICT and last.t_exit > t_m:
                 t_m, binding, pred, relation = last.t_exit, "conflict", last.vehicle_id, "conflict"
         prof = self._profile(vehicle_id, t0, v0, D, t_m, v_limit)
+        intrusion = float("nan")
+        if prev is not None:
+            prof, intrusion = self._keep_behind(prof, prev, t0, v0, D, t_m)
         t_exit = t_m + zone_length_m / prof.v_m
-        a = Assignment(vehicle_id, lane, t0, t_m, prof, pred, relation, binding, movement, t_exit)
+        a = Assignment(vehicle_id, lane, t0, t_m, prof, pred, relation, binding, movement, t_exit, intrusion)
         self._last_on_lane[lane] = a
         prev_m = self._last_on_movement.get(movement)
         if prev_m is None or t_exit > prev_m.t_exit:
             self._last_on_movement[movement] = a
         return a
+
+    def _keep_behind(self, prof: Profile, prev: Assignment, t0: float, v0: float, D: float,
+                     t_m: float) -> tuple[Profile, float]:
+        """``prof``, or the rear-end constrained profile when ``prof`` runs into the gap behind the
+        lane leader's plan before this vehicle merges; with the remaining intrusion [m] (<= 0: none)."""
+        gap = self.settings.rear_end_spacing_m
+        lead = prev.profile
+        shift = lead.D - D  # the leader's position in this vehicle's coordinates is p_lead - shift
+
+        def leader_pos(t):
+            return lead.evaluate(t)[0] - shift
+
+        # up to this vehicle's own merge time: past its merge time the leader crosses the zone at
+        # constant speed (the profile's continuation), as the merge-time spacing assumes
+        intrusion = rear_end_violation(prof, leader_pos, t_m, gap)
+        if intrusion <= 0.0:
+            return prof, intrusion
+        vm = None if (self.settings.terminal_speed == "free" and prof.kind != "fixed_speed") else prof.v_m
+        try:
+            safe = rear_end_constrained(t0, v0, D, t_m - t0, self.bounds, leader_pos, t_m, gap, vm=vm)
+        except InfeasibleProfile:
+            return prof, intrusion
+        return safe, rear_end_violation(safe, leader_pos, t_m, gap)
 
     def _profile(self, vehicle_id: str, t0: float, v0: float, D: float, t_m: float, v_limit: float) -> Profile:
         b = self.bounds

@@ -21,6 +21,14 @@ Fixed terminal speed ``v_m``: ``u = a tau + b``, ``a = (6 T (v0 + v_m) - 12 D)/T
 
 After ``T`` every profile continues at constant speed (the vehicle crosses the merging zone at
 constant speed).
+
+Rear-end safety inside the control zone (:func:`rear_end_constrained`): the closed forms ignore the
+vehicle ahead, and a follower whose merge time is bound by spacing at the zone entry can catch up
+with a slower leader on the way (a leader held back by a conflict slows down deeply in the middle
+of the zone). Malikopoulos et al. (2018) state the rear-end constraint as a state constraint of the
+same problem; it is solved here numerically: ``u`` piecewise linear on a uniform grid (so the
+profile stays piecewise cubic), the exact integrals of it, ``J`` exact, and the gap to the
+leader's planned position required at every grid instant -- a quadratic program.
 """
 
 from __future__ import annotations
@@ -46,14 +54,20 @@ class PlanBounds:
     ----------
     v_min_mps, v_max_mps : speed bounds [m/s] (``0 < v_min < v_max``).
     u_min_mps2, u_max_mps2 : acceleration bounds [m/s^2] (``u_min < 0 < u_max``).
+    max_lateral_accel_mps2 : lateral acceleration [m/s^2] that bounds the speed through the merging
+        zone on a curved path, ``v <= sqrt(a / kappa_max)`` (0: no bound; SUMO's own turn speeds
+        still apply at a junction).
     """
 
     v_min_mps: float = 1.0
     v_max_mps: float = 20.0
     u_min_mps2: float = -3.0
     u_max_mps2: float = 2.5
+    max_lateral_accel_mps2: float = 0.0
 
     def __post_init__(self) -> None:
+        if self.max_lateral_accel_mps2 < 0.0:
+            raise ValueError(f"planning.max_lateral_accel_mps2 must be >= 0, got {self.max_lateral_accel_mps2}")
         if not (0.0 < self.v_min_mps < self.v_max_mps):
             raise ValueError(f"planning bounds need 0 < v_min < v_max, got {self.v_min_mps}, {self.v_max_mps}")
         if not (self.u_min_mps2 < 0.0 < self.u_max_mps2):
@@ -221,6 +235,91 @@ def fixed_terminal(t0: float, v0: float, vm: float, D: float, T: float, bounds: 
     return prof
 
 
+def rear_end_violation(prof: Profile, leader_pos, t_end: float, gap_m: float, dt: float = 0.1) -> float:
+    """Largest intrusion [m] of ``prof`` into the gap behind its leader over ``[t0, t_end]``:
+    ``max(p(t) - (leader_pos(t) - gap_m))`` sampled every ``dt`` [s] (<= 0: no violation).
+    ``leader_pos(t)`` is the leader's planned position in this vehicle's coordinates [m]."""
+    if t_end <= prof.t0:
+        return -math.inf
+    t = np.linspace(prof.t0, t_end, max(2, int(math.ceil((t_end - prof.t0) / dt)) + 1))
+    return float(np.max(prof.evaluate(t)[0] - (leader_pos(t) - gap_m)))
+
+
+def rear_end_constrained(t0: float, v0: float, D: float, T: float, bounds: PlanBounds, leader_pos, t_end: float,
+                         gap_m: float, vm: float | None = None, step_s: float = 0.5, max_intervals: int = 80,
+                         solver: str = "osqp") -> Profile:
+    """Energy-optimal profile that also stays ``gap_m`` behind the leader's plan.
+
+    Minimises ``J = 1/2 int_0^T u^2`` (exact for piecewise-linear ``u``) over the values of ``u`` at
+    ``N = min(max_intervals, ceil(T / step_s))`` uniform intervals, subject to ``p(T) = D``,
+    ``v(T) = vm`` (or ``u(T) = 0`` when ``vm`` is None: free terminal speed), the speed and
+    acceleration bounds at the grid instants, and ``p(tau_k) <= leader_pos(t0 + tau_k) - gap_m``
+    at every grid instant up to ``t_end`` [s]. One QP through qpsolvers (OSQP by default).
+
+    Raises :class:`InfeasibleProfile` when no such profile exists (or the solver fails).
+    """
+    from qpsolvers import Problem, solve_problem
+
+    if not (T > 0.0 and D > 0.0):
+        raise InfeasibleProfile(f"need T > 0 and D > 0 (got T={T}, D={D})")
+    N = int(min(max_intervals, max(4, math.ceil(T / step_s))))
+    h = T / N
+    n = N + 1
+    # v_k = v0 + Av[k] @ u, p_k = v0 tau_k + Ap[k] @ u (exact for u linear on each interval)
+    Av = np.zeros((n, n))
+    Ap = np.zeros((n, n))
+    for k in range(N):
+        Av[k + 1] = Av[k]
+        Av[k + 1, k] += h / 2.0
+        Av[k + 1, k + 1] += h / 2.0
+        Ap[k + 1] = Ap[k] + h * Av[k]
+        Ap[k + 1, k] += h * h / 3.0
+        Ap[k + 1, k + 1] += h * h / 6.0
+    tau = h * np.arange(n)
+    # J = 1/2 sum h/3 (u_k^2 + u_k u_k+1 + u_k+1^2) = 1/2 u^T P u
+    P = np.zeros((n, n))
+    for k in range(N):
+        P[k, k] += 2.0 * h / 3.0
+        P[k + 1, k + 1] += 2.0 * h / 3.0
+        P[k, k + 1] += h / 3.0
+        P[k + 1, k] += h / 3.0
+    A = [Ap[N]]
+    b = [D - v0 * T]
+    if vm is None:
+        A.append(np.eye(n)[N])
+        b.append(0.0)
+    else:
+        A.append(Av[N])
+        b.append(vm - v0)
+    G = [Av[1:], -Av[1:]]
+    hv = [np.full(N, bounds.v_max_mps - v0), np.full(N, v0 - bounds.v_min_mps)]
+    ahead = np.flatnonzero((tau > 0.0) & (t0 + tau <= t_end + 1e-9))
+    if ahead.size:
+        G.append(Ap[ahead])
+        hv.append(leader_pos(t0 + tau[ahead]) - gap_m - v0 * tau[ahead])
+    prob = Problem(P=P, q=np.zeros(n), G=np.vstack(G), h=np.concatenate(hv), A=np.vstack(A), b=np.array(b),
+                   lb=np.full(n, bounds.u_min_mps2), ub=np.full(n, bounds.u_max_mps2))
+    kwargs = {"eps_abs": 1e-6, "eps_rel": 1e-6, "polishing": True, "max_iter": 100000} if solver == "osqp" else {}
+    import warnings
+
+    try:
+        with warnings.catch_warnings():  # an infeasible problem is an expected outcome here
+            warnings.simplefilter("ignore")
+            sol = solve_problem(prob, solver=solver, **kwargs)
+    except Exception as exc:  # a solver error is the same outcome for the caller
+        raise InfeasibleProfile(f"rear-end constrained profile: solver {solver} failed: {exc}") from None
+    if not sol.found or sol.x is None or not np.all(np.isfinite(sol.x)):
+        raise InfeasibleProfile(
+            f"no profile covers D={D:.2f} m in T={T:.2f} s from v0={v0:.2f} m/s and stays {gap_m:g} m behind the "
+            f"leader's plan within the bounds")
+    u = np.clip(sol.x, bounds.u_min_mps2, bounds.u_max_mps2)
+    prof = _build(t0, T, D, v0, "rear_end", [(h, u[k], (u[k + 1] - u[k]) / h) for k in range(N)])
+    if abs(prof.coef[-1, 0] - D) > 1e-3 or (vm is not None and abs(prof.coef[-1, 1] - vm) > 1e-3):
+        raise InfeasibleProfile(f"rear-end constrained profile: solver {solver} did not meet the end conditions "
+                                f"(p {prof.coef[-1, 0]:.4f} of {D:.4f} m, v {prof.coef[-1, 1]:.4f} m/s)")
+    return prof
+
+
 def min_time(v0: float, D: float, bounds: PlanBounds) -> float:
     """Shortest time [s] to cover ``D`` from ``v0`` within the bounds: full acceleration to
     ``v_max``, then cruise (the limit ``w -> 0`` of the ``accel``/``accel_speed`` arcs)."""
@@ -248,9 +347,14 @@ def max_time(v0: float, D: float, bounds: PlanBounds) -> float:
 @njit(cache=True)
 def packed_position(seg, tau):
     """Compiled position [m] of a packed profile (:meth:`Profile.packed`) at local time ``tau``."""
-    k = 0
-    for i in range(seg.shape[0]):
-        if seg[i, 0] <= tau:
-            k = i
+    # last segment whose knot is <= tau (the first one before it); knots increase
+    lo, hi = 0, seg.shape[0] - 1
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        if seg[mid, 0] <= tau:
+            lo = mid
+        else:
+            hi = mid - 1
+    k = lo
     d = tau - seg[k, 0]
     return seg[k, 1] + seg[k, 2] * d + seg[k, 3] * d * d / 2.0 + seg[k, 4] * d * d * d / 6.0
