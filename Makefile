@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 SCENARIO ?= sumo_scenarios/cross4/scenario.toml
 OUT    ?= runs
 
-.PHONY: install run test paper bench nets clean clean-cache
+.PHONY: install run test paper bench nets golden clean clean-cache
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -33,6 +33,14 @@ nets: $(STAMP)
 	$(BIN)/python sumo_scenarios/paper_curved/generate.py
 	$(BIN)/python sumo_scenarios/paper_cbf/generate.py
 	$(BIN)/python sumo_scenarios/generate_junctions.py
+
+# the recorded run that the tests replay (tests/test_replay.py); regenerate it, and commit it, only
+# when a deliberate change alters results. Recorded and replayed with numba's portable CPU target.
+GOLDEN := tests/golden/cross4
+golden: $(STAMP)
+	rm -rf $(GOLDEN)
+	NUMBA_CPU_NAME=generic $(BIN)/nrtraffic run sumo_scenarios/cross4/scenario.toml --seed 7 --duration 75 \
+	    --set demand.end_s=25 --set demand.rate_veh_h=600 --set outputs.trajectory_interval_s=0.5 --out $(GOLDEN) --no-progress
 
 # numba's on-disk cache does not notice edits in the modules a kernel calls: clear it after editing
 clean-cache:

@@ -47,17 +47,51 @@ def _add_baseline(sub) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
-def _add_compare(sub) -> None:
-    p = sub.add_parser("compare", help="nrtraffic against SUMO's junction control over demands and seeds",
-                       description="Run a junction scenario under nrtraffic and SUMO's traffic_light, priority and "
-                                   "allway_stop control for each demand level and seed (in parallel processes; "
-                                   "finished runs are skipped), and write the comparison table and figure.")
-    p.add_argument("scenario", type=Path, help="scenario.toml with a [junction]")
-    p.add_argument("--rates", default="200,400,600", help="demand levels, veh/h per approach (default 200,400,600)")
-    p.add_argument("--seeds", default="1:5", help="seeds, A:B inclusive or a comma list (default 1:5)")
-    p.add_argument("--duration", type=float, default=1800.0, metavar="S", help="simulated time per run [s]")
-    p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
+def _add_sweep(sub) -> None:
+    p = sub.add_parser(
+        "sweep", help="many seeds and grid points on Dask, aggregated with confidence intervals",
+        description="Run every (grid point, seed) of a scenario, and optionally SUMO's junction control on the same "
+                    "seeds, on Dask distributed: a local cluster of worker processes by default, or an existing "
+                    "scheduler. Each run directory is written under a temporary name and renamed when finished; "
+                    "re-running the same command skips finished runs; a failing run is retried once and then "
+                    "recorded as failed while the others go on. Writes DIR/sweep.csv (one row per run), "
+                    "DIR/sweep_summary.csv (mean, sd, 95 %% CI per grid point and control), DIR/sweep.md and "
+                    "the figures DIR/sweep.png and DIR/sweep_seeds.png. Exit status 1 when a run failed.")
+    p.add_argument("scenario", type=Path, help="scenario.toml (or the folder holding it)")
+    p.add_argument("--seeds", required=True, help="seeds, A:B inclusive or a comma list, e.g. 1:20")
+    p.add_argument("--grid", action="append", default=[], metavar="SECTION.KEY=V1,V2,...",
+                   help="a scenario setting and its values (repeatable; the grid is the product), "
+                        "e.g. --grid demand.rate_veh_h=200,400,600")
+    p.add_argument("--baseline", default=None, metavar="CONTROL[,CONTROL...]",
+                   help="also run SUMO's junction control on the same seeds: traffic_light, priority, allway_stop, "
+                        "right_before_left")
+    p.add_argument("--duration", type=float, default=None, metavar="S", help="simulated time per run [s] "
+                   "(default: the scenario's)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override a scenario setting in every run (repeatable)")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=2, help="worker processes of the local cluster (default 2)")
+    where.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help="use an existing Dask scheduler, e.g. tcp://10.0.0.5:8786 (workers must see DIR)")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _add_replay(sub) -> None:
+    from runners.replay import ATOL, RTOL
+
+    p = sub.add_parser(
+        "replay", help="re-run a finished run headless and compare with what it recorded",
+        description="Re-run a run directory from its scenario.resolved.toml and compare summary.json, vehicles.csv "
+                    "and trajectories.parquet with the recorded ones: every number must satisfy "
+                    "|replayed - recorded| <= atol + rtol |recorded| (wall-clock figures excepted). Exit status 0 "
+                    "when they match, 1 with the differences (which figure, which vehicle, by how much) when not.")
+    p.add_argument("run_dir", type=Path, help="a run directory written by run, baseline or sweep")
+    p.add_argument("--rtol", type=float, default=RTOL, help=f"relative tolerance (default {RTOL:g})")
+    p.add_argument("--atol", type=float, default=ATOL, help=f"absolute tolerance, in each figure's unit "
+                   f"(default {ATOL:g})")
+    p.add_argument("--out", type=Path, default=None, metavar="DIR",
+                   help="keep the replay in DIR (default: a temporary folder, removed)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -77,12 +111,15 @@ def main(argv: list[str] | None = None) -> int:
     _add_run(sub)
     _add_paper(sub)
     _add_baseline(sub)
-    _add_compare(sub)
+    _add_sweep(sub)
+    _add_replay(sub)
     _add_bench(sub)
     args = parser.parse_args(argv)
     from nrtraffic.engine import RunFailed
     from nrtraffic.scenario import ScenarioError
     from nrtraffic.sumo.network import NetworkError
+    from runners.replay import ReplayError
+    from runners.sweep import SweepError
 
     try:
         if args.command == "run":
@@ -100,16 +137,23 @@ def main(argv: list[str] | None = None) -> int:
                                progress=not args.no_progress)
             _print_summary(res.summary, args.out)
             return 0
-        if args.command == "compare":
-            from runners import compare
+        if args.command == "sweep":
+            from runners import sweep
 
-            return compare.main(args)
+            return sweep.main(args)
+        if args.command == "replay":
+            from runners import replay
+
+            return replay.main(args)
         if args.command == "bench":
             from runners import bench
 
             return bench.main(args)
     except (ScenarioError, NetworkError) as exc:
         print(f"nrtraffic: scenario error: {exc}", file=sys.stderr)
+        return 2
+    except (SweepError, ReplayError) as exc:
+        print(f"nrtraffic: {exc}", file=sys.stderr)
         return 2
     except RunFailed as exc:
         print(f"nrtraffic: {exc}", file=sys.stderr)

@@ -1,0 +1,184 @@
+"""``nrtraffic replay``: re-run a finished run from its ``scenario.resolved.toml`` and compare.
+
+A run is deterministic for a given seed and machine (one seeded generator, SUMO's ``--seed``, no
+wall-clock input), so a replay on the same machine reproduces it exactly. The comparison still
+allows a tolerance, ``|replayed - recorded| <= atol + rtol * |recorded|`` on every number, so that
+a replay on another machine (other floating-point kernels) passes when the run agrees to that
+precision:
+
+- ``summary.json``: every number except those of the wall clock (``wall_time_s``,
+  ``real_time_factor``) and the versions;
+- ``vehicles.csv``: the same vehicles; every number of every vehicle, and the text columns equal;
+- ``trajectories.parquet``: the same log instants per vehicle; every number at every instant.
+
+NaN equals NaN (a figure that does not apply in both).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+RTOL = 1e-6
+ATOL = 1e-6
+WALL_CLOCK = {"wall_time_s", "real_time_factor", "nrtraffic_version", "sumo_version"}
+
+
+class ReplayError(ValueError):
+    """The folder is not a complete run directory."""
+
+
+@dataclass(frozen=True)
+class Difference:
+    where: str  # "summary", "vehicles.csv" or "trajectories.parquet"
+    what: str  # figure / vehicle and column
+    recorded: object
+    replayed: object
+
+    def __str__(self) -> str:
+        try:
+            delta = f" (difference {float(self.replayed) - float(self.recorded):+.6g})"
+        except (TypeError, ValueError):
+            delta = ""
+        return f"{self.where}: {self.what}: recorded {self.recorded!r}, replayed {self.replayed!r}{delta}"
+
+
+def _close(a, b, rtol: float, atol: float) -> bool:
+    if a is None or b is None:
+        return a is None and b is None
+    if isinstance(a, str) or isinstance(b, str):
+        return a == b
+    a, b = float(a), float(b)
+    if math.isnan(a) or math.isnan(b):
+        return math.isnan(a) and math.isnan(b)
+    return abs(b - a) <= atol + rtol * abs(a)
+
+
+def compare_summaries(rec: dict, new: dict, rtol: float = RTOL, atol: float = ATOL) -> list[Difference]:
+    out = []
+    for k in sorted(set(rec) | set(new)):
+        if k in WALL_CLOCK:
+            continue
+        a, b = rec.get(k, "<absent>"), new.get(k, "<absent>")
+        if isinstance(a, (dict, list)) or isinstance(b, (dict, list)):
+            if a != b:
+                out.append(Difference("summary", k, a, b))
+        elif not _close(a, b, rtol, atol):
+            out.append(Difference("summary", k, a, b))
+    return out
+
+
+def _compare_frames(where: str, rec: pd.DataFrame, new: pd.DataFrame, keys: list[str], rtol: float,
+                    atol: float, limit: int) -> list[Difference]:
+    out = []
+    for c in sorted(set(rec.columns) ^ set(new.columns)):
+        out.append(Difference(where, f"column {c}", "present" if c in rec else "absent",
+                              "present" if c in new else "absent"))
+    rec_i, new_i = rec.set_index(keys), new.set_index(keys)
+    missing = rec_i.index.difference(new_i.index)
+    extra = new_i.index.difference(rec_i.index)
+    for idx in list(missing)[:limit]:
+        out.append(Difference(where, f"{_label(keys, idx)}", "present", "absent"))
+    for idx in list(extra)[:limit]:
+        out.append(Difference(where, f"{_label(keys, idx)}", "absent", "present"))
+    common = rec_i.index.intersection(new_i.index)
+    cols = [c for c in rec.columns if c in new.columns and c not in keys]
+    a, b = rec_i.loc[common, cols], new_i.loc[common, cols]
+    for c in cols:
+        x, y = a[c], b[c]
+        if pd.api.types.is_numeric_dtype(x) and pd.api.types.is_numeric_dtype(y):
+            xv, yv = x.to_numpy(float), y.to_numpy(float)
+            bad = ~(np.isclose(yv, xv, rtol=rtol, atol=atol) | (np.isnan(xv) & np.isnan(yv)))
+        else:
+            both_null = x.isna().to_numpy() & y.isna().to_numpy()
+            bad = ~both_null & (x.astype(str) != y.astype(str)).to_numpy()
+        for i in np.flatnonzero(bad)[:limit]:
+            out.append(Difference(where, f"{_label(keys, common[i])} {c}", _py(x.iloc[i]), _py(y.iloc[i])))
+    return out
+
+
+def _label(keys, idx) -> str:
+    idx = idx if isinstance(idx, tuple) else (idx,)
+    return ", ".join(f"{k} {_py(v)}" for k, v in zip(keys, idx))
+
+
+def _py(v):
+    return v.item() if isinstance(v, np.generic) else v
+
+
+def compare_runs(recorded: Path, replayed: Path, rtol: float = RTOL, atol: float = ATOL,
+                 limit: int = 5) -> list[Difference]:
+    """Differences between two run directories (at most ``limit`` per column and table)."""
+    recorded, replayed = Path(recorded), Path(replayed)
+    diffs = compare_summaries(json.loads((recorded / "summary.json").read_text()),
+                              json.loads((replayed / "summary.json").read_text()), rtol, atol)
+    v_rec = pd.read_csv(recorded / "vehicles.csv", dtype={"vehicle_id": str})
+    v_new = pd.read_csv(replayed / "vehicles.csv", dtype={"vehicle_id": str})
+    diffs += _compare_frames("vehicles.csv", v_rec, v_new, ["vehicle_id"], rtol, atol, limit)
+    t_rec, t_new = recorded / "trajectories.parquet", replayed / "trajectories.parquet"
+    if t_rec.is_file() or t_new.is_file():
+        if not (t_rec.is_file() and t_new.is_file()):
+            diffs.append(Difference("trajectories.parquet", "file", t_rec.is_file(), t_new.is_file()))
+        else:
+            a, b = pd.read_parquet(t_rec), pd.read_parquet(t_new)
+            a["vehicle_id"], b["vehicle_id"] = a["vehicle_id"].astype(str), b["vehicle_id"].astype(str)
+            diffs += _compare_frames("trajectories.parquet", a, b, ["vehicle_id", "t"], rtol, atol, limit)
+    return diffs
+
+
+def replay(run_dir: Path, out: Path | None = None, rtol: float = RTOL, atol: float = ATOL,
+           progress: bool = False) -> tuple[list[Difference], Path | None]:
+    """Re-run ``run_dir`` from its recorded configuration (into ``out``, or a temporary folder that
+    is removed afterwards) and compare. Returns the differences and the replay's folder (None when
+    it was temporary)."""
+    from nrtraffic import scenario
+    from nrtraffic.engine import RunFailed
+    from runners.baseline import run_baseline
+    from runners.single import run_scenario
+
+    run_dir = Path(run_dir)
+    for f in ("scenario.resolved.toml", "summary.json", "vehicles.csv"):
+        if not (run_dir / f).is_file():
+            raise ReplayError(f"{run_dir} is not a complete run directory: {f} is missing")
+    recorded = json.loads((run_dir / "summary.json").read_text())
+    sc = scenario.load(run_dir / "scenario.resolved.toml")
+    tmp = None
+    if out is None:
+        tmp = Path(tempfile.mkdtemp(prefix="nrtraffic-replay-"))
+        out = tmp / "run"
+    try:
+        try:
+            if recorded.get("junction_type"):
+                run_baseline(sc, recorded["junction_type"], out, progress=progress)
+            else:
+                run_scenario(sc, out, progress=progress)
+        except RunFailed:
+            if recorded.get("status") == "ok":
+                raise
+            # the recorded run failed too: compare what both finished
+        return compare_runs(run_dir, out, rtol, atol), (None if tmp else Path(out))
+    finally:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def main(args) -> int:
+    diffs, kept = replay(args.run_dir, args.out, args.rtol, args.atol, progress=not args.no_progress)
+    if not diffs:
+        print(f"replay of {args.run_dir}: matches (rtol {args.rtol:g}, atol {args.atol:g})")
+        return 0
+    print(f"replay of {args.run_dir}: {len(diffs)} difference(s) beyond rtol {args.rtol:g}, atol {args.atol:g}:")
+    for d in diffs[:40]:
+        print(f"  {d}")
+    if len(diffs) > 40:
+        print(f"  ... and {len(diffs) - 40} more")
+    if kept is not None:
+        print(f"the replay is in {kept}")
+    return 1

@@ -1,0 +1,398 @@
+"""``nrtraffic sweep``: every (grid point, seed, control) of a study as one run, on Dask distributed.
+
+Layout of the output folder ``DIR``::
+
+    runs/<grid point>/seed<S>/<control>/   one run directory each (control: nrtraffic or a baseline)
+    sweep.csv                              one row per run: grid values, seed, control, status, figures
+    sweep_summary.csv                      per grid point and control: mean, sd, 95 % CI of each figure
+    sweep.md                               the headline figures as a markdown table
+    sweep.png, sweep_seeds.png             figures against the grid value, and per-seed distributions
+
+A run directory is written under a temporary name and renamed when the run has finished, so a run
+directory under its final name is always complete; re-running the same command skips those. A
+run that fails is retried once; if it fails again it is recorded in ``sweep.csv`` with its error,
+what it had finished is kept in ``<control>.failed/``, and the others go on.
+
+The jobs run on a local cluster of worker processes (one simulation at a time per process:
+libsumo holds one simulation per process) or on an existing Dask scheduler given by address.
+Workers of an external cluster must see ``DIR`` and the scenario at the same paths (a shared file
+system) and have nrtraffic installed.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+import os
+import shutil
+import threading
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+
+import pandas as pd
+
+NRTRAFFIC = "nrtraffic"
+BASELINES = ("traffic_light", "priority", "allway_stop", "right_before_left")
+# the figures of the markdown table and the figures (the CSVs hold every figure of summary.json)
+HEADLINE = ("throughput_veh_h", "mean_delay_s", "mean_sumo_time_loss_s", "mean_fuel_ml", "collisions",
+            "collisions_geometric")
+# summary entries that are not figures of the run
+NOT_FIGURES = {"scenario", "seed", "status", "error", "nrtraffic_version", "sumo_version", "control",
+               "junction_type"}
+
+_ONE_SIMULATION = threading.Lock()  # per worker process, whatever its thread count
+
+
+class SweepError(ValueError):
+    """A sweep's arguments are wrong (bad grid, seed range or baseline)."""
+
+
+@dataclass(frozen=True)
+class Job:
+    """One run of a sweep. ``overrides`` are ``section.key=value`` settings (the sweep's ``--set``
+    followed by the grid point's)."""
+
+    scenario: str
+    overrides: tuple[str, ...]
+    point: tuple[tuple[str, str], ...]  # the grid point: (key, value) pairs
+    seed: int
+    control: str
+    duration_s: float | None
+    run_dir: str
+
+    def spec(self) -> dict:
+        return {"scenario": self.scenario, "overrides": list(self.overrides), "seed": self.seed,
+                "control": self.control, "duration_s": self.duration_s, "run_dir": self.run_dir}
+
+
+# ------------------------------------------------------------------ arguments
+def parse_seeds(text: str) -> list[int]:
+    """``A:B`` (inclusive) or a comma list of integers."""
+    try:
+        if ":" in text:
+            a, b = text.split(":")
+            seeds = list(range(int(a), int(b) + 1))
+        else:
+            seeds = [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise SweepError(f"--seeds {text!r}: expected A:B or a comma list of integers") from None
+    if not seeds:
+        raise SweepError(f"--seeds {text!r} selects no seed")
+    return seeds
+
+
+def parse_grid(items: list[str]) -> list[tuple[str, list[str]]]:
+    """``section.key=v1,v2,...`` (repeatable) -> [(key, [values])]; the points are their product."""
+    grid = []
+    for item in items:
+        key, sep, values = item.partition("=")
+        key = key.strip()
+        vals = [v.strip() for v in values.split(",") if v.strip()]
+        if not sep or "." not in key or not vals:
+            raise SweepError(f"--grid {item!r}: expected SECTION.KEY=V1,V2,...")
+        if key in dict(grid):
+            raise SweepError(f"--grid {key} is given twice")
+        grid.append((key, vals))
+    return grid
+
+
+def parse_baselines(text: str | None) -> list[str]:
+    if not text:
+        return []
+    out = [b.strip() for b in text.split(",") if b.strip()]
+    for b in out:
+        if b not in BASELINES:
+            raise SweepError(f"--baseline {b!r}: expected some of {', '.join(BASELINES)}")
+    return out
+
+
+def point_name(point: tuple[tuple[str, str], ...]) -> str:
+    """Folder name of a grid point: ``key=value,key=value`` (``base`` without a grid)."""
+    return ",".join(f"{k}={v}" for k, v in point) or "base"
+
+
+def plan(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]]], controls: list[str], out: Path,
+         duration_s: float | None = None, overrides: tuple[str, ...] = ()) -> list[Job]:
+    """Every job of the sweep. Each grid point's configuration is loaded here first, so a bad key
+    or value stops the sweep before any run starts, with the scenario loader's message."""
+    from nrtraffic import scenario
+
+    keys = [k for k, _ in grid]
+    jobs = []
+    for values in itertools.product(*[v for _, v in grid]):
+        point = tuple(zip(keys, values))
+        ov = tuple(overrides) + tuple(f"{k}={v}" for k, v in point)
+        sc = scenario.load(scenario_path, list(ov))
+        if any(c != NRTRAFFIC for c in controls) and not sc.junction.id:
+            raise SweepError("--baseline needs a scenario with a [junction]")
+        for seed in seeds:
+            for control in controls:
+                d = Path(out) / "runs" / point_name(point) / f"seed{seed}" / control
+                jobs.append(Job(str(Path(scenario_path).resolve()), ov, point, seed, control, duration_s, str(d)))
+    return jobs
+
+
+# ------------------------------------------------------------------ one run (on a worker)
+def finished(job: Job) -> dict | None:
+    """The summary of the job's run directory when it holds a complete, successful run of this job."""
+    path = Path(job.run_dir) / "summary.json"
+    if not path.is_file():
+        return None
+    try:
+        s = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    if s.get("status") != "ok" or s.get("seed") != job.seed:
+        return None
+    if job.duration_s and not math.isclose(float(s.get("sim_time_s") or 0.0), job.duration_s, abs_tol=0.5):
+        return None
+    return s
+
+
+def run_job(spec: dict) -> dict:
+    """Run one job into ``spec['run_dir']`` through a temporary directory renamed on success; on
+    failure what was finished goes to ``<run_dir>.failed`` and the exception propagates (so Dask
+    retries it). Returns the run's summary."""
+    from nrtraffic import scenario
+    from runners.baseline import run_baseline
+    from runners.single import run_scenario
+
+    final = Path(spec["run_dir"])
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = final.parent / f".{final.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    failed = final.parent / f"{final.name}.failed"
+    with _ONE_SIMULATION:
+        try:
+            sc = scenario.load(spec["scenario"], spec["overrides"])
+            if spec["control"] == NRTRAFFIC:
+                res = run_scenario(sc, tmp, seed=spec["seed"], duration_s=spec["duration_s"])
+            else:
+                res = run_baseline(sc, spec["control"], tmp, seed=spec["seed"], duration_s=spec["duration_s"])
+        except BaseException:
+            if tmp.exists():
+                shutil.rmtree(failed, ignore_errors=True)
+                tmp.rename(failed)
+            raise
+    shutil.rmtree(failed, ignore_errors=True)
+    if final.exists():  # an earlier, unfinished or different run of this job
+        shutil.rmtree(final)
+    tmp.rename(final)
+    return res.summary
+
+
+# ------------------------------------------------------------------ the sweep
+def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | None = None,
+              progress: bool = True) -> pd.DataFrame:
+    """Run the jobs not yet finished on Dask, then write the tables and figures from every run
+    directory. Returns ``sweep.csv`` as a DataFrame."""
+    import dask
+    from dask.distributed import Client, LocalCluster, as_completed
+    from tqdm import tqdm
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    todo = [j for j in jobs if finished(j) is None]
+    errors: dict[str, str] = {}
+    if todo:
+        # a worker that dies (e.g. killed by the OS) is one failure of that job, not three
+        with dask.config.set({"distributed.scheduler.allowed-failures": 1}):
+            if scheduler:
+                client, cluster = Client(scheduler), None
+            else:
+                cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                       dashboard_address=":0", memory_limit=0)
+                client = Client(cluster)
+            try:
+                futures = {client.submit(run_job, j.spec(), retries=1, pure=False,
+                                         key=f"run-{uuid.uuid4().hex}"): j for j in todo}
+                bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="runs", unit="run",
+                           disable=None if progress else True)
+                n_failed = 0
+                for fut in as_completed(futures):
+                    job = futures[fut]
+                    if fut.status != "finished":
+                        exc = fut.exception()
+                        errors[job.run_dir] = f"{type(exc).__name__}: {exc}".strip()
+                        n_failed += 1
+                    bar.update(1)
+                    bar.set_postfix(failed=n_failed, remaining=bar.total - bar.n, refresh=False)
+                bar.close()
+            finally:
+                client.close()
+                if cluster is not None:
+                    cluster.close()
+    df = collect(jobs, errors)
+    write_tables(df, out)
+    return df
+
+
+def collect(jobs: list[Job], errors: dict[str, str] | None = None) -> pd.DataFrame:
+    """One row per job from its run directory: grid values, seed, control, status, error and the
+    scalar figures of summary.json."""
+    errors = errors or {}
+    rows = []
+    for j in jobs:
+        row = {k: _number(v) for k, v in j.point}
+        row.update(seed=j.seed, control=j.control)
+        s = finished(j)
+        if s is None:
+            row.update(status="failed", error=errors.get(j.run_dir, "not run"))
+        else:
+            row.update(status="ok", error="")
+            row.update({k: v for k, v in s.items()
+                        if k not in NOT_FIGURES and (v is None or isinstance(v, (int, float)))})
+        row["run_dir"] = str(Path(j.run_dir))
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def _number(v: str):
+    try:
+        f = float(v)
+    except ValueError:
+        return v
+    return int(f) if f.is_integer() and "." not in v else f
+
+
+def grid_keys(df: pd.DataFrame) -> list[str]:
+    return [c for c in df.columns if "." in c]
+
+
+def summarize(df: pd.DataFrame) -> pd.DataFrame:
+    """Per grid point and control: runs, failed runs, and mean, standard deviation and 95 %
+    confidence half-width (Student t) of every figure over the successful runs."""
+    from scipy import stats
+
+    keys = grid_keys(df) + ["control"]
+    figures = [c for c in df.columns if c not in set(keys) | {"seed", "status", "error", "run_dir"}]
+    out = []
+    for point, g in df.groupby(keys, sort=True, dropna=False):
+        row = dict(zip(keys, point if isinstance(point, tuple) else (point,)))
+        ok = g[g["status"] == "ok"]
+        row.update(runs=len(ok), failed=int((g["status"] != "ok").sum()))
+        for k in figures:
+            x = pd.to_numeric(ok[k], errors="coerce").dropna()
+            n = len(x)
+            sd = float(x.std(ddof=1)) if n > 1 else math.nan
+            row[f"{k}_mean"] = float(x.mean()) if n else math.nan
+            row[f"{k}_sd"] = sd
+            row[f"{k}_ci95"] = float(stats.t.ppf(0.975, n - 1)) * sd / math.sqrt(n) if n > 1 else math.nan
+        out.append(row)
+    return pd.DataFrame(out)
+
+
+def write_tables(df: pd.DataFrame, out: Path) -> None:
+    df.to_csv(out / "sweep.csv", index=False)
+    summ = summarize(df)
+    summ.to_csv(out / "sweep_summary.csv", index=False)
+    (out / "sweep.md").write_text(markdown(summ, df))
+    if len(summ) and (summ["runs"] > 0).any():
+        figure(summ, out / "sweep.png")
+        seed_figure(df, out / "sweep_seeds.png")
+
+
+def markdown(summ: pd.DataFrame, df: pd.DataFrame) -> str:
+    keys = grid_keys(summ)
+    seeds = sorted(df["seed"].unique())
+    lines = [f"Mean over seeds {seeds[0]}-{seeds[-1]} ({len(seeds)} seeds) with the 95 % confidence half-width; "
+             "collisions are totals over the runs.", "",
+             "| " + " | ".join(keys + ["control", "runs (failed)", "throughput [veh/h]", "delay [s]",
+                                       "SUMO timeLoss [s]", "fuel [mL/veh]", "collisions: SUMO / own check"]) + " |",
+             "|" + "---|" * (len(keys) + 7)]
+
+    def f(r, k, nd=1):
+        m, c = r.get(f"{k}_mean", math.nan), r.get(f"{k}_ci95", math.nan)
+        if m != m:
+            return "n/a"
+        return f"{m:.{nd}f}" + ("" if c != c else f" ± {c:.{nd}f}")
+
+    def total(r, k):
+        m = r.get(f"{k}_mean", math.nan)
+        return "n/a" if m != m else f"{round(m * r['runs']):d}"
+
+    for _, r in summ.iterrows():
+        cells = [f"{r[k]}" for k in keys] + [
+            r["control"], f"{r['runs']} ({r['failed']})", f(r, "throughput_veh_h", 0), f(r, "mean_delay_s"),
+            f(r, "mean_sumo_time_loss_s"), f(r, "mean_fuel_ml"),
+            f"{total(r, 'collisions')} / {total(r, 'collisions_geometric')}"]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _x_axis(summ: pd.DataFrame):
+    """The x of the figures: the one numeric grid key, else the grid points in order."""
+    keys = grid_keys(summ)
+    if len(keys) == 1 and pd.api.types.is_numeric_dtype(summ[keys[0]]):
+        return keys[0], summ[keys[0]].astype(float), None
+    labels = summ[keys].astype(str).agg(",".join, axis=1) if keys else pd.Series(["base"] * len(summ))
+    order = {lab: i for i, lab in enumerate(dict.fromkeys(labels))}
+    return "grid point", labels.map(order).astype(float), list(order)
+
+
+def figure(summ: pd.DataFrame, path: Path) -> None:
+    """Throughput, mean delay and fuel against the grid value, mean with its 95 % band per control."""
+    from nrtraffic.plots import plt
+
+    xlabel, x, ticks = _x_axis(summ)
+    fig, axes = plt.subplots(1, 3, figsize=(12.5, 3.8))
+    for control, g in summ.groupby("control", sort=False):
+        xs = x[g.index]
+        order = xs.argsort()
+        for ax, k, label in zip(axes, ("throughput_veh_h", "mean_delay_s", "mean_fuel_ml"),
+                                ("throughput [veh/h]", "mean delay [s]", "fuel [mL/veh]")):
+            m = g[f"{k}_mean"].to_numpy()[order]
+            c = g[f"{k}_ci95"].fillna(0.0).to_numpy()[order]
+            xo = xs.to_numpy()[order]
+            line, = ax.plot(xo, m, marker="o", label=control)
+            ax.fill_between(xo, m - c, m + c, color=line.get_color(), alpha=0.2, linewidth=0)
+            ax.set(xlabel=xlabel, ylabel=label)
+            ax.grid(alpha=0.3)
+            if ticks:
+                ax.set_xticks(range(len(ticks)), ticks, rotation=20, fontsize=7)
+    axes[0].legend(fontsize=8)
+    fig.suptitle("mean over seeds, band: 95 % confidence interval", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def seed_figure(df: pd.DataFrame, path: Path) -> None:
+    """Per-seed values of mean delay and throughput: one box per grid point and control, with
+    every seed drawn as a point."""
+    from nrtraffic.plots import plt
+
+    ok = df[df["status"] == "ok"].copy()
+    keys = grid_keys(df)
+    ok["group"] = (ok[keys].astype(str).agg(",".join, axis=1) + "\n" if keys else "") + ok["control"]
+    groups = list(dict.fromkeys(ok.sort_values(keys + ["control"])["group"]))
+    fig, axes = plt.subplots(2, 1, figsize=(max(6.0, 0.9 * len(groups) + 2), 6.5), sharex=True)
+    for ax, k, label in zip(axes, ("mean_delay_s", "throughput_veh_h"), ("mean delay [s]", "throughput [veh/h]")):
+        data = [pd.to_numeric(ok.loc[ok["group"] == g, k], errors="coerce").dropna().to_numpy() for g in groups]
+        ax.boxplot(data, widths=0.5, showfliers=False)
+        for i, d in enumerate(data):
+            ax.plot(i + 1 + 0.08 * (((pd.Series(range(len(d))) % 5) - 2).to_numpy()), d, ".", ms=4, alpha=0.7)
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3, axis="y")
+    axes[-1].set_xticks(range(1, len(groups) + 1), groups, rotation=30, fontsize=7, ha="right")
+    fig.suptitle("per-seed distribution (box: quartiles; dots: seeds)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main(args) -> int:
+    grid = parse_grid(args.grid)
+    controls = [NRTRAFFIC] + parse_baselines(args.baseline)
+    jobs = plan(args.scenario, parse_seeds(args.seeds), grid, controls, args.out, args.duration,
+                tuple(args.overrides))
+    df = run_sweep(jobs, args.out, workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress)
+    print((Path(args.out) / "sweep.md").read_text())
+    n_failed = int((df["status"] != "ok").sum())
+    if n_failed:
+        for _, r in df[df["status"] != "ok"].iterrows():
+            print(f"failed: {r['run_dir']}: {r['error']}")
+        print(f"{n_failed} of {len(df)} runs failed; re-run the same command to retry them")
+        return 1
+    return 0

@@ -1,0 +1,72 @@
+"""``nrtraffic replay`` against the recorded run in tests/golden (``make golden`` regenerates it)."""
+
+import json
+import shutil
+
+import pandas as pd
+import pytest
+
+from conftest import ROOT
+from runners.cli import main
+from runners.replay import compare_runs, replay
+
+GOLDEN = ROOT / "tests" / "golden" / "cross4"
+
+
+@pytest.fixture(scope="module")
+def replayed(tmp_path_factory):
+    out = tmp_path_factory.mktemp("replay") / "run"
+    diffs, kept = replay(GOLDEN, out)
+    return diffs, kept
+
+
+def test_golden_run_replays_within_tolerance(replayed):
+    diffs, kept = replayed
+    assert diffs == [], "\n".join(map(str, diffs))
+    # the golden run is not trivial: vehicles crossed the junction under control
+    v = pd.read_csv(GOLDEN / "vehicles.csv")
+    assert (v["t_exit_s"].notna()).sum() >= 5
+    assert len(pd.read_parquet(GOLDEN / "trajectories.parquet")) > 100
+
+
+def test_altered_figures_are_named(replayed, tmp_path):
+    _, kept = replayed
+    altered = tmp_path / "altered"
+    shutil.copytree(kept, altered)
+    s = json.loads((altered / "summary.json").read_text())
+    s["mean_delay_s"] += 0.25
+    (altered / "summary.json").write_text(json.dumps(s))
+    v = pd.read_csv(altered / "vehicles.csv", dtype={"vehicle_id": str})
+    vid = v.loc[v["t_exit_s"].notna(), "vehicle_id"].iloc[0]
+    v.loc[v["vehicle_id"] == vid, "t_exit_s"] += 0.1
+    v.to_csv(altered / "vehicles.csv", index=False)
+    t = pd.read_parquet(altered / "trajectories.parquet")
+    t.loc[t.index[10], "x"] += 1e-3
+    t.to_parquet(altered / "trajectories.parquet")
+    text = [str(d) for d in compare_runs(altered, kept)]
+    assert len(text) == 3
+    assert any("summary: mean_delay_s" in d and "-0.25" in d for d in text)
+    assert any(f"vehicle_id {vid} t_exit_s" in d for d in text)
+    assert any(d.startswith("trajectories.parquet") and " x:" in d for d in text)
+    # below the tolerance is a match
+    t.loc[t.index[10], "x"] -= 1e-3 - 1e-8
+    t.to_parquet(altered / "trajectories.parquet")
+    assert len(compare_runs(altered, kept)) == 2
+
+
+def test_replay_command_fails_on_an_altered_run_and_says_where(tmp_path, capsys):
+    run = tmp_path / "run"
+    shutil.copytree(GOLDEN, run)
+    v = pd.read_csv(run / "vehicles.csv", dtype={"vehicle_id": str})
+    vid = v["vehicle_id"].iloc[0]
+    v.loc[0, "energy_u2"] = v.loc[0, "energy_u2"] * 1.01 + 0.01
+    v.to_csv(run / "vehicles.csv", index=False)
+    assert main(["replay", str(run), "--no-progress"]) == 1
+    out = capsys.readouterr().out
+    assert f"vehicles.csv: vehicle_id {vid} energy_u2" in out
+    assert "difference" in out
+
+
+def test_replay_refuses_a_folder_that_is_not_a_run(tmp_path, capsys):
+    assert main(["replay", str(tmp_path)]) == 2
+    assert "scenario.resolved.toml is missing" in capsys.readouterr().err

@@ -1,0 +1,83 @@
+"""``nrtraffic sweep`` on a local Dask cluster of two workers: tables, a failing run, resuming."""
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import stats
+
+from runners.cli import main
+
+SHORT = ["--set", "scenario.duration_s=25", "--set", "demand.end_s=12", "--set", "demand.rate_veh_h=600"]
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory):
+    """cross4 with a second network file that is not a network: the runs on it fail in the worker."""
+    from conftest import SCENARIOS
+
+    d = tmp_path_factory.mktemp("scenario")
+    for f in (SCENARIOS / "cross4").iterdir():
+        if f.is_file():
+            shutil.copy(f, d / f.name)
+    (d / "broken.net.xml").write_text("<net><edge id=")
+    out = tmp_path_factory.mktemp("sweep") / "out"
+    argv = ["sweep", str(d / "scenario.toml"), "--seeds", "1:2", "--grid", "scenario.network=net.net.xml,broken.net.xml",
+            "--baseline", "priority", "--workers", "2", "--out", str(out), "--no-progress", *SHORT]
+    code = main(argv)
+    return argv, code, out
+
+
+def test_sweep_writes_tables_and_records_the_failing_runs(study):
+    _, code, out = study
+    assert code == 1  # some runs failed
+    df = pd.read_csv(out / "sweep.csv")
+    assert len(df) == 2 * 2 * 2  # grid points x seeds x controls
+    good = df[df["scenario.network"] == "net.net.xml"]
+    bad = df[df["scenario.network"] == "broken.net.xml"]
+    assert (good["status"] == "ok").all() and (bad["status"] == "failed").all()
+    assert bad["error"].str.len().gt(0).all()
+    assert set(good["control"]) == {"nrtraffic", "priority"}
+    # each finished run is a complete run directory under its final name, and its row is its summary
+    for _, r in good.iterrows():
+        s = json.loads((Path(r["run_dir"]) / "summary.json").read_text())
+        assert s["seed"] == r["seed"] and s["status"] == "ok"
+        assert s["vehicles_spawned"] == r["vehicles_spawned"] > 0
+    assert not list(out.rglob(".*.tmp-*"))  # nothing half-written under a temporary name
+    # the summary: mean, sd and Student-t 95 % half-width, recomputed here from the per-run rows
+    summ = pd.read_csv(out / "sweep_summary.csv")
+    row = summ[(summ["scenario.network"] == "net.net.xml") & (summ["control"] == "nrtraffic")].iloc[0]
+    x = good[good["control"] == "nrtraffic"]["vehicles_spawned"].to_numpy(float)
+    assert row["runs"] == 2 and row["failed"] == 0
+    assert row["vehicles_spawned_mean"] == pytest.approx(x.mean())
+    assert row["vehicles_spawned_sd"] == pytest.approx(x.std(ddof=1))
+    assert row["vehicles_spawned_ci95"] == pytest.approx(stats.t.ppf(0.975, 1) * x.std(ddof=1) / np.sqrt(2))
+    bad_row = summ[(summ["scenario.network"] == "broken.net.xml") & (summ["control"] == "nrtraffic")].iloc[0]
+    assert bad_row["runs"] == 0 and bad_row["failed"] == 2
+    for f in ("sweep.md", "sweep.png", "sweep_seeds.png"):
+        assert (out / f).stat().st_size > 0
+
+
+def test_resuming_skips_finished_runs(study):
+    argv, _, out = study
+    df = pd.read_csv(out / "sweep.csv")
+    ok_dirs = [Path(d) for d in df.loc[df["status"] == "ok", "run_dir"]]
+    stamps = {d: (d / "summary.json").stat().st_mtime_ns for d in ok_dirs}
+    code = main(argv)
+    assert code == 1  # the broken runs fail again
+    assert {d: (d / "summary.json").stat().st_mtime_ns for d in ok_dirs} == stamps  # not run again
+    df2 = pd.read_csv(out / "sweep.csv")
+    assert (df2["status"] == "ok").sum() == len(ok_dirs)
+
+
+def test_bad_grid_is_refused_before_any_run(tmp_path, capsys):
+    from conftest import SCENARIOS
+
+    code = main(["sweep", str(SCENARIOS / "cross4"), "--seeds", "1:2", "--grid", "demand.no_such_key=1,2",
+                 "--out", str(tmp_path / "o")])
+    assert code == 2
+    assert "no_such_key" in capsys.readouterr().err
+    assert not (tmp_path / "o" / "runs").exists()
