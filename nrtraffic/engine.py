@@ -24,7 +24,7 @@ from nrtraffic import __version__, metrics
 from nrtraffic.control import batch as kb
 from nrtraffic.demand import shifted_exponential_arrivals
 from nrtraffic.geometry import LanePath
-from nrtraffic.planning.conflicts import MovementGeometry, classify, headings
+from nrtraffic.planning.conflicts import MovementGeometry, boxes_overlap, classify, headings
 from nrtraffic.planning.coordinator import REAR_END_TOL_M, Coordinator, ScheduleInfeasible
 from nrtraffic.planning.profiles import packed_position
 from nrtraffic.results import VEHICLE_COLUMNS, RunResult, TrajectoryWriter
@@ -36,21 +36,6 @@ N_PROFILE_SEG = 81  # packed profile segments (closed forms: at most 3 arcs + cr
 STEADY_AFTER_S = 3.0  # DESIGN.md: steady-state tracking error counts after 3 s under control
 PATH_SPACING_M = 0.25  # sampling of the smoothed lane paths [m]
 LEADER_LOOKAHEAD_M = 200.0  # how far along its path a vehicle looks for its leader [m]
-
-
-def _boxes_overlap(x1, y1, h1, x2, y2, h2, length, width) -> bool:
-    """Separating-axis test of two rectangles (centre, heading [rad], same size)."""
-    axes = [(math.cos(h1), math.sin(h1)), (-math.sin(h1), math.cos(h1)),
-            (math.cos(h2), math.sin(h2)), (-math.sin(h2), math.cos(h2))]
-    dx, dy = x2 - x1, y2 - y1
-    for ax, ay in axes:
-        r1 = 0.5 * length * abs(math.cos(h1) * ax + math.sin(h1) * ay) + 0.5 * width * abs(
-            -math.sin(h1) * ax + math.cos(h1) * ay)
-        r2 = 0.5 * length * abs(math.cos(h2) * ax + math.sin(h2) * ay) + 0.5 * width * abs(
-            -math.sin(h2) * ax + math.cos(h2) * ay)
-        if abs(dx * ax + dy * ay) > r1 + r2:
-            return False
-    return True
 
 
 def _curve_speed(path, s_from: float, s_to: float, a_lat: float, window_m: float = 2.0) -> float:
@@ -619,12 +604,13 @@ class Engine:
         cy = poses[:, 1] - 0.5 * p.length * sn
         d2 = (cx[:, None] - cx[None, :]) ** 2 + (cy[:, None] - cy[None, :]) ** 2
         ii, jj = np.nonzero(np.triu(d2 < (p.length + p.width) ** 2, 1))
-        for i, j in zip(ii, jj):
-            if _boxes_overlap(cx[i], cy[i], poses[i, 2], cx[j], cy[j], poses[j, 2], p.length, p.width):
-                pair = tuple(sorted((ids[i], ids[j])))
-                if pair not in self.geometric_collisions:
-                    self.geometric_collisions.add(pair)
-                    self.collision_log.append({"t": self.t, "pair": list(pair), "source": "geometric"})
+        touch = boxes_overlap(np.c_[cx[ii], cy[ii]], poses[ii, 2], np.c_[cx[jj], cy[jj]], poses[jj, 2], p.length,
+                              p.width)
+        for i, j in zip(ii[touch], jj[touch]):
+            pair = tuple(sorted((ids[i], ids[j])))
+            if pair not in self.geometric_collisions:
+                self.geometric_collisions.add(pair)
+                self.collision_log.append({"t": self.t, "pair": list(pair), "source": "geometric"})
 
     def _advance(self, dt: float) -> None:
         if not self.batch_ids:

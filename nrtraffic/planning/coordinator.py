@@ -16,10 +16,11 @@ so spacing at entry and exit means no catching up inside, even behind a slower t
 Spacing at the entry and exit of the merging zone does not keep the planned trajectories apart on
 the way to it: a follower can catch up with a leader whose plan slows down deeply (held back by a
 conflict). When the closed-form profile comes closer than ``delta`` to the leader's plan anywhere
-before its own merge time (the leader's plan continues at constant speed past its merge), it is replaced by the energy-optimal profile with that rear-end
-constraint (:func:`~nrtraffic.planning.profiles.rear_end_constrained`, a QP); if that QP has no
-solution, the closed form is kept, its intrusion into the gap is recorded, and the longitudinal
-barrier keeps the cars apart.
+before its own merge time (the leader's plan continues at constant speed past its merge), it is
+replaced by the energy-optimal profile with that rear-end constraint
+(:func:`~nrtraffic.planning.profiles.rear_end_constrained`, a QP); if that QP has no solution, the
+closed form is kept, its intrusion into the gap is recorded, and the longitudinal barrier keeps
+the cars apart.
 
 ``T_earliest`` is ``D / v0`` (cruise at the entry speed, as Malikopoulos et al. 2018 and the paper:
 an unhindered vehicle keeps its speed) or the bound-limited minimum time, whichever is longer;
