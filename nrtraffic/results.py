@@ -130,7 +130,15 @@ def write_vehicles(path: Path, vehicles: pd.DataFrame) -> None:
 
 
 def read_trajectories(run_dir: Path) -> pd.DataFrame:
-    return pd.read_parquet(Path(run_dir) / "trajectories.parquet")
+    return read_parquet_file(Path(run_dir) / "trajectories.parquet")
+
+
+def read_parquet_file(path: Path) -> pd.DataFrame:
+    """One Parquet file as a DataFrame. Unlike ``pandas.read_parquet`` it does not read
+    ``key=value`` folders of the path as Hive partitions (sweep run directories are named so)."""
+    import pyarrow.parquet as pq
+
+    return pq.ParquetFile(path).read().to_pandas()
 
 
 def read_fcd(path: Path) -> pd.DataFrame:

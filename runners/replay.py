@@ -26,6 +26,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from nrtraffic.results import read_parquet_file
+
 RTOL = 1e-6
 ATOL = 1e-6
 WALL_CLOCK = {"wall_time_s", "real_time_factor", "nrtraffic_version", "sumo_version"}
@@ -127,7 +129,7 @@ def compare_runs(recorded: Path, replayed: Path, rtol: float = RTOL, atol: float
         if not (t_rec.is_file() and t_new.is_file()):
             diffs.append(Difference("trajectories.parquet", "file", t_rec.is_file(), t_new.is_file()))
         else:
-            a, b = pd.read_parquet(t_rec), pd.read_parquet(t_new)
+            a, b = read_parquet_file(t_rec), read_parquet_file(t_new)
             a["vehicle_id"], b["vehicle_id"] = a["vehicle_id"].astype(str), b["vehicle_id"].astype(str)
             diffs += _compare_frames("trajectories.parquet", a, b, ["vehicle_id", "t"], rtol, atol, limit)
     return diffs

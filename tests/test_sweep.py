@@ -81,3 +81,13 @@ def test_bad_grid_is_refused_before_any_run(tmp_path, capsys):
     assert code == 2
     assert "no_such_key" in capsys.readouterr().err
     assert not (tmp_path / "o" / "runs").exists()
+
+
+def test_a_sweep_run_replays(study):
+    """A run directory of a sweep (its path holds ``key=value`` folders, which pandas would read
+    as Hive partitions of the trajectory file) replays to the same figures."""
+    _, _, out = study
+    df = pd.read_csv(out / "sweep.csv")
+    run = df.loc[(df["status"] == "ok") & (df["control"] == "nrtraffic"), "run_dir"].iloc[0]
+    assert "=" in run
+    assert main(["replay", run, "--no-progress"]) == 0
