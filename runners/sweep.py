@@ -383,6 +383,8 @@ def seed_figure(df: pd.DataFrame, path: Path) -> None:
 
 
 def main(args) -> int:
+    if args.scheduler is None and args.workers < 1:
+        raise SweepError(f"--workers {args.workers}: need at least one worker process")
     grid = parse_grid(args.grid)
     controls = [NRTRAFFIC] + parse_baselines(args.baseline)
     jobs = plan(args.scenario, parse_seeds(args.seeds), grid, controls, args.out, args.duration,
