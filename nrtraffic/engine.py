@@ -593,7 +593,7 @@ class Engine:
 
     def _collisions_geometric(self) -> None:
         """Own collision check: oriented rectangles (length x width) of every pair of vehicles
-        closer than one length, separating-axis test; counted once per pair."""
+        whose circumscribed circles meet, separating-axis test; counted once per pair."""
         ids = list(self.sumo.vehicle_ids())
         if len(ids) < 2:
             return
@@ -603,7 +603,10 @@ class Engine:
         cx = poses[:, 0] - 0.5 * p.length * c
         cy = poses[:, 1] - 0.5 * p.length * sn
         d2 = (cx[:, None] - cx[None, :]) ** 2 + (cy[:, None] - cy[None, :]) ** 2
-        ii, jj = np.nonzero(np.triu(d2 < (p.length + p.width) ** 2, 1))
+        # two rectangles can touch only when their circumscribed circles do
+        ii, jj = np.nonzero(np.triu(d2 <= p.length * p.length + p.width * p.width, 1))
+        if ii.size == 0:
+            return
         touch = boxes_overlap(np.c_[cx[ii], cy[ii]], poses[ii, 2], np.c_[cx[jj], cy[jj]], poses[jj, 2], p.length,
                               p.width)
         for i, j in zip(ii[touch], jj[touch]):
