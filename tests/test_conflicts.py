@@ -5,8 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from nrtraffic.planning.conflicts import (COMPATIBLE, CONFLICT, SAME_LANE, MovementGeometry, boxes_overlap, classify,
-                                          swept_overlap)
+from nrtraffic.planning.conflicts import COMPATIBLE, CONFLICT, SAME_LANE, MovementGeometry, boxes_overlap, classify
 
 L, W = 4.8, 1.9
 
