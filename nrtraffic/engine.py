@@ -24,7 +24,7 @@ from nrtraffic import __version__, metrics
 from nrtraffic.control import batch as kb
 from nrtraffic.demand import shifted_exponential_arrivals
 from nrtraffic.geometry import LanePath
-from nrtraffic.planning.conflicts import MovementGeometry, boxes_overlap, classify, headings
+from nrtraffic.planning.conflicts import MovementGeometry, boxes_overlap, classify
 from nrtraffic.planning.coordinator import REAR_END_TOL_M, Coordinator, ScheduleInfeasible
 from nrtraffic.planning.profiles import packed_position
 from nrtraffic.results import VEHICLE_COLUMNS, RunResult, TrajectoryWriter
@@ -47,8 +47,8 @@ def _curve_speed(path, s_from: float, s_to: float, a_lat: float, window_m: float
     sel = (path.s >= s_from) & (path.s <= s_to)
     if sel.sum() < 3:
         return math.inf
-    h = np.unwrap(headings(path.xy[sel]))
     s = path.s[sel]
+    h = np.unwrap(path.heading_at(s))
     n = max(1, int(round(window_m / max(float(np.median(np.diff(s))), 1e-6))))
     if len(s) <= n:
         return math.inf
@@ -286,7 +286,7 @@ class Engine:
             sel = (m.path.s >= m.s_merge) & (m.path.s <= m.s_exit)
             # the path carries the centre of gravity; the body's centre is ahead of it by this [m]
             ahead = self.params.cg_to_front - 0.5 * self.params.length
-            h = headings(m.path.xy[sel])
+            h = m.path.heading_at(m.path.s[sel])
             centre = m.path.xy[sel] + ahead * np.stack([np.cos(h), np.sin(h)], -1)
             geo.append(MovementGeometry(m.name, m.lanes[0], m.lanes[-1], centre))
         return classify(geo, self.params.length, self.params.width, self.sc.junction.lateral_clearance_m)

@@ -33,12 +33,13 @@ def _add_paper(sub) -> None:
 
 
 def _add_baseline(sub) -> None:
+    from nrtraffic.sumo.netbuild import JUNCTION_TYPES
+
     p = sub.add_parser("baseline", help="the same demand under SUMO's own junction control",
                        description="Run a junction scenario's demand and seed with SUMO driving every vehicle "
                                    "under its own junction control, into a run directory of the same form.")
     p.add_argument("scenario", type=Path, help="scenario.toml with a [junction] (or its folder)")
-    p.add_argument("--junction", required=True, choices=["traffic_light", "priority", "allway_stop",
-                                                         "right_before_left"], help="SUMO's junction control")
+    p.add_argument("--junction", required=True, choices=JUNCTION_TYPES, help="SUMO's junction control")
     p.add_argument("--seed", type=int, default=None, help="random seed (default: the scenario's)")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="simulated time [s]")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="run directory")
@@ -48,6 +49,8 @@ def _add_baseline(sub) -> None:
 
 
 def _add_sweep(sub) -> None:
+    from nrtraffic.sumo.netbuild import JUNCTION_TYPES
+
     p = sub.add_parser(
         "sweep", help="many seeds and grid points on Dask, aggregated with confidence intervals",
         description="Run every (grid point, seed) of a scenario, and optionally SUMO's junction control on the same "
@@ -63,8 +66,7 @@ def _add_sweep(sub) -> None:
                    help="a scenario setting and its values (repeatable; the grid is the product), "
                         "e.g. --grid demand.rate_veh_h=200,400,600")
     p.add_argument("--baseline", default=None, metavar="CONTROL[,CONTROL...]",
-                   help="also run SUMO's junction control on the same seeds: traffic_light, priority, allway_stop, "
-                        "right_before_left")
+                   help=f"also run SUMO's junction control on the same seeds: {', '.join(JUNCTION_TYPES)}")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="simulated time per run [s] "
                    "(default: the scenario's)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",

@@ -33,8 +33,10 @@ from pathlib import Path
 
 import pandas as pd
 
+from nrtraffic.sumo.netbuild import JUNCTION_TYPES
+
 NRTRAFFIC = "nrtraffic"
-BASELINES = ("traffic_light", "priority", "allway_stop", "right_before_left")
+BASELINES = JUNCTION_TYPES  # SUMO's junction controls a sweep can add as baselines
 # the figures of the markdown table and the figures (the CSVs hold every figure of summary.json)
 HEADLINE = ("throughput_veh_h", "mean_delay_s", "mean_sumo_time_loss_s", "mean_fuel_ml", "collisions",
             "collisions_geometric")
