@@ -153,28 +153,59 @@ def _catmull_rom(pts: np.ndarray, spacing: float) -> np.ndarray:
     return np.vstack(out)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
+def path_point(q, xy, s):
+    """Compiled position ``(x, y)`` [m] at arc length ``q`` [m] of one packed path."""
+    n = s.shape[0]
+    lo = 0
+    hi = n - 2
+    # binary search for the segment i with s[i] <= q < s[i+1]
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        if s[mid] <= q:
+            lo = mid
+        else:
+            hi = mid - 1
+    i = lo
+    frac = (q - s[i]) / (s[i + 1] - s[i])
+    return xy[i, 0] + frac * (xy[i + 1, 0] - xy[i, 0]), xy[i, 1] + frac * (xy[i + 1, 1] - xy[i, 1])
+
+
+@njit(cache=True, error_model="numpy")
 def path_xy(s_arr, xy, s, out):
     """Compiled :meth:`LanePath.xy_at` for one packed path: positions at each ``s_arr[j]``."""
-    n = s.shape[0]
     for j in range(s_arr.shape[0]):
-        q = s_arr[j]
-        lo = 0
-        hi = n - 2
-        # binary search for the segment i with s[i] <= q < s[i+1]
-        while lo < hi:
-            mid = (lo + hi + 1) // 2
-            if s[mid] <= q:
-                lo = mid
-            else:
-                hi = mid - 1
-        i = lo
-        frac = (q - s[i]) / (s[i + 1] - s[i])
-        out[j, 0] = xy[i, 0] + frac * (xy[i + 1, 0] - xy[i, 0])
-        out[j, 1] = xy[i, 1] + frac * (xy[i + 1, 1] - xy[i, 1])
+        out[j, 0], out[j, 1] = path_point(s_arr[j], xy, s)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
+def segment_frames(xy, s):
+    """Per segment ``i`` of a path: unit tangent ``(tx, ty)`` and the curvature [1/m] around it
+    (heading change between the neighbouring segments over the distance between their midpoints).
+    Returns ``(len(s), 3)``; the last row repeats the last segment's, so rows align with points."""
+    n = s.shape[0] - 1
+    out = np.empty((n + 1, 3))
+    for i in range(n):
+        dx = xy[i + 1, 0] - xy[i, 0]
+        dy = xy[i + 1, 1] - xy[i, 1]
+        L = math.sqrt(dx * dx + dy * dy)
+        i0 = max(i - 1, 0)
+        i1 = min(i + 1, n - 1)
+        out[i, 0] = dx / L
+        out[i, 1] = dy / L
+        if i1 == i0:
+            out[i, 2] = 0.0
+            continue
+        th0 = math.atan2(xy[i0 + 1, 1] - xy[i0, 1], xy[i0 + 1, 0] - xy[i0, 0])
+        th1 = math.atan2(xy[i1 + 1, 1] - xy[i1, 1], xy[i1 + 1, 0] - xy[i1, 0])
+        dth = (th1 - th0 + math.pi) % (2.0 * math.pi) - math.pi
+        ds = 0.5 * (s[i1] + s[i1 + 1]) - 0.5 * (s[i0] + s[i0 + 1])
+        out[i, 2] = dth / ds
+    out[n] = out[n - 1]
+    return out
+
+
+@njit(cache=True, error_model="numpy")
 def project_local(xy, s, qx, qy, hint, back, ahead):
     """Compiled projection of ``(qx, qy)`` onto the segments ``hint-back .. hint+ahead`` of a packed
     path; returns ``(s, lateral, segment)`` (lateral positive to the left)."""
@@ -206,3 +237,59 @@ def project_local(xy, s, qx, qy, hint, back, ahead):
             best_lat = (dx * (qy - ay) - dy * (qx - ax)) / seg
             best_i = i
     return best_s, best_lat, best_i
+
+
+@njit(cache=True, error_model="numpy")
+def rectangles_touch(x1, y1, h1, x2, y2, h2, length, width):
+    """Separating-axis test of two ``length`` x ``width`` [m] rectangles with centres ``(x, y)``
+    [m] and headings ``h`` [rad] (compiled scalar twin of
+    :func:`nrtraffic.planning.conflicts.boxes_overlap`); touching counts."""
+    c1 = math.cos(h1)
+    s1 = math.sin(h1)
+    c2 = math.cos(h2)
+    s2 = math.sin(h2)
+    dx = x2 - x1
+    dy = y2 - y1
+    hl = 0.5 * length
+    hw = 0.5 * width
+    for k in range(4):
+        if k == 0:
+            ax, ay = c1, s1
+        elif k == 1:
+            ax, ay = -s1, c1
+        elif k == 2:
+            ax, ay = c2, s2
+        else:
+            ax, ay = -s2, c2
+        r1 = hl * abs(c1 * ax + s1 * ay) + hw * abs(-s1 * ax + c1 * ay)
+        r2 = hl * abs(c2 * ax + s2 * ay) + hw * abs(-s2 * ax + c2 * ay)
+        if abs(dx * ax + dy * ay) > r1 + r2:
+            return False
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def touching_pairs(cx, cy, psi, length, width):
+    """Index pairs ``i < j`` of rectangles (centres ``(cx, cy)`` [m], headings ``psi`` [rad], all
+    ``length`` x ``width`` [m]) that touch; only pairs whose circumscribed circles meet are tested.
+    Returns two int arrays."""
+    n = cx.shape[0]
+    r2 = length * length + width * width
+    cnt = 0
+    ii = np.empty(8, dtype=np.int64)
+    jj = np.empty(8, dtype=np.int64)
+    for i in range(n):
+        for j in range(i + 1, n):
+            dx = cx[j] - cx[i]
+            dy = cy[j] - cy[i]
+            if dx * dx + dy * dy > r2:
+                continue
+            if not rectangles_touch(cx[i], cy[i], psi[i], cx[j], cy[j], psi[j], length, width):
+                continue
+            if cnt == ii.shape[0]:
+                ii = np.concatenate((ii, np.empty(cnt, dtype=np.int64)))
+                jj = np.concatenate((jj, np.empty(cnt, dtype=np.int64)))
+            ii[cnt] = i
+            jj[cnt] = j
+            cnt += 1
+    return ii[:cnt], jj[:cnt]

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from nrtraffic.vehicle.bicycle import dynamics, jacobians, simulate
+from nrtraffic.vehicle.bicycle import dynamics, jacobians, rhs_tangent, simulate
 from nrtraffic.vehicle.params import BicycleParams, preset
 
 P = preset("paper")
@@ -41,6 +41,24 @@ def test_jacobians_match_finite_differences(vl):
             e[k] = h
             num = (_f(x, u + e) - _f(x, u - e)) / (2 * h)
             assert np.allclose(fu[:, k], num, rtol=1e-5, atol=1e-5 * (1 + np.abs(num).max())), (vl, k)
+
+
+@pytest.mark.parametrize("vl", [15.0, 3.0, 1.4, 1.0, 0.7, 0.3, 0.0])
+def test_fused_tangent_equals_dynamics_and_jacobian_product(vl):
+    # rhs_tangent is dynamics + f_x P + f_u in one pass, using only f_x's non-zero entries
+    rng = np.random.default_rng(100 + int(vl * 10))
+    for _ in range(10):
+        x = np.array([rng.normal(), rng.normal(), vl, 0.05 * rng.normal() * max(vl, 0.1), rng.uniform(-3, 3),
+                      0.1 * rng.normal()])
+        a, d = rng.normal(), 0.2 * rng.normal()
+        P = rng.normal(size=(6, 2))
+        fx, fu = np.empty((6, 6)), np.empty((6, 2))
+        jacobians(x, np.array([a, d]), p, fx, fu)
+        f, dP = np.empty(6), np.empty((6, 2))
+        rhs_tangent(x, math.cos(x[4]), math.sin(x[4]), a, d, math.cos(d), math.sin(d), math.tan(d), p, P, f, dP)
+        assert np.allclose(f, _f(x, [a, d]), rtol=1e-13, atol=1e-13)
+        ref = fx @ P + fu
+        assert np.allclose(dP, ref, rtol=1e-12, atol=1e-12 * (1 + np.abs(ref).max()))
 
 
 def test_straight_constant_speed_moves_v_t():

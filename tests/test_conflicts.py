@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 
+from nrtraffic.geometry import rectangles_touch, touching_pairs
 from nrtraffic.planning.conflicts import COMPATIBLE, CONFLICT, SAME_LANE, MovementGeometry, boxes_overlap, classify
 
 L, W = 4.8, 1.9
@@ -34,16 +35,30 @@ def _overlap_by_sampling(c1, h1, c2, h2):
     return False
 
 
-def test_separating_axes_agree_with_sampled_geometry():
+@pytest.mark.parametrize("compiled", [False, True])
+def test_separating_axes_agree_with_sampled_geometry(compiled):
     rng = np.random.default_rng(3)
     agree = 0
     for _ in range(400):
         c1, c2 = rng.uniform(-3, 3, 2), rng.uniform(-3, 3, 2)
         h1, h2 = rng.uniform(-math.pi, math.pi, 2)
-        got = bool(boxes_overlap(c1, h1, c2, h2, L, W))
+        if compiled:  # the own collision check's scalar twin
+            got = rectangles_touch(c1[0], c1[1], h1, c2[0], c2[1], h2, L, W)
+        else:
+            got = bool(boxes_overlap(c1, h1, c2, h2, L, W))
         ref = _overlap_by_sampling(c1, h1, c2, h2)
         agree += got == ref
     assert agree >= 398  # sampling can miss a contact thinner than its 2.4 cm step
+
+
+def test_touching_pairs_finds_every_overlapping_pair():
+    rng = np.random.default_rng(5)
+    c = rng.uniform(0, 30, (60, 2))
+    h = rng.uniform(-math.pi, math.pi, 60)
+    ii, jj = touching_pairs(c[:, 0], c[:, 1], h, L, W)
+    got = set(zip(ii.tolist(), jj.tolist()))
+    ref = {(i, j) for i in range(60) for j in range(i + 1, 60) if boxes_overlap(c[i], h[i], c[j], h[j], L, W)}
+    assert len(ref) > 5 and got == ref
 
 
 @pytest.mark.parametrize("clearance", [0.0, 0.3, 0.6, 0.7, 1.0])

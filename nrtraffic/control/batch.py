@@ -24,8 +24,8 @@ import numpy as np
 from numba import njit, objmode
 
 from nrtraffic.control import cbf
-from nrtraffic.control.nr_flow import nr_update
-from nrtraffic.geometry import path_xy, project_local
+from nrtraffic.control.nr_flow import new_workspace, nr_update
+from nrtraffic.geometry import path_point, project_local
 from nrtraffic.metrics import fuel_rate
 from nrtraffic.planning.profiles import packed_position
 from nrtraffic.vehicle.bicycle import euler_step
@@ -42,8 +42,8 @@ N_OUT = 12
 # settings packed in ``cfg``
 (CFG_H, CFG_HORIZON, CFG_DT_PRED, CFG_ALPHA, CFG_DAMPING, CFG_STEADY_AFTER, CFG_CBF_LONG, CFG_CBF_LAT, CFG_D0,
  CFG_A_BAR, CFG_LONG_GAIN, CFG_Y_MAX, CFG_K_LAT, CFG_GAMMA, CFG_BISECT_TOL, CFG_ANTI_WINDUP, CFG_QP_MODE,
- CFG_ROOT_C) = range(18)
-N_CFG = 18
+ CFG_ROOT_C, CFG_PREDICTOR) = range(19)
+N_CFG = 19
 
 NO_LEADER = -1
 EXTERNAL_LEADER = -2
@@ -66,41 +66,23 @@ def _qp(a_star, G, b, lo, hi):
     return a, st
 
 
-@njit(cache=True)
-def _ref_xy(prof, tau, s_enter, xy, s, out):
-    q = np.empty(1)
-    q[0] = s_enter + packed_position(prof, tau)
-    path_xy(q, xy, s, out)
-    return q[0]
+@njit(cache=True, error_model="numpy")
+def _ref_xy(prof, tau, s_enter, xy, s):
+    """Reference point ``(x, y)`` [m] at local time ``tau`` [s]: the profile's distance mapped onto
+    the lane path."""
+    return path_point(s_enter + packed_position(prof, tau), xy, s)
 
 
-@njit(cache=True)
-def _tangent_curvature(xy, s, i):
-    """Unit tangent of segment ``i`` and the curvature [1/m] around it."""
-    n = s.shape[0] - 1
-    dx = xy[i + 1, 0] - xy[i, 0]
-    dy = xy[i + 1, 1] - xy[i, 1]
-    L = math.sqrt(dx * dx + dy * dy)
-    i0 = max(i - 1, 0)
-    i1 = min(i + 1, n - 1)
-    if i1 == i0:
-        return dx / L, dy / L, 0.0
-    th0 = math.atan2(xy[i0 + 1, 1] - xy[i0, 1], xy[i0 + 1, 0] - xy[i0, 0])
-    th1 = math.atan2(xy[i1 + 1, 1] - xy[i1, 1], xy[i1 + 1, 0] - xy[i1, 0])
-    dth = (th1 - th0 + math.pi) % (2.0 * math.pi) - math.pi
-    ds = 0.5 * (s[i1] + s[i1 + 1]) - 0.5 * (s[i0] + s[i0 + 1])
-    return dx / L, dy / L, dth / ds
-
-
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_enter, s_enter, path_id, path_off,
-            path_xy_all, path_s_all, hint, lead_idx, lead_ext, acc, out):
+            path_xy_all, path_s_all, path_frames, hint, lead_idx, lead_ext, acc, out):
     """Advance all vehicles from ``t_start`` by ``n_sub`` plant steps (in place).
 
     X (N,6), U (N,2): plant states and tracker inputs (the update law's state). prof (N,K,5):
     packed profiles. path_*: packed lane paths, vehicle ``i`` on path ``path_id[i]``. hint (N,):
     projection segment of each vehicle (updated). lead_idx (N,): leader's batch index, NO_LEADER or
-    EXTERNAL_LEADER; lead_ext (N,6): external leader (px, py, vx, vy, ax, ay) at ``t_start``.
+    EXTERNAL_LEADER; path_frames: :func:`nrtraffic.geometry.segment_frames` of the packed paths, row
+    for row; lead_ext (N,6): external leader (px, py, vx, vy, ax, ay) at ``t_start``.
     acc (N, N_ACC): accumulated figures. out (N, N_OUT): holds the vehicle's arc length, lateral
     deviation and tracking error at ``t_start`` on entry and at the end of the step on return.
     """
@@ -111,10 +93,12 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
     cbf_lat = cfg[CFG_CBF_LAT] > 0.5
     anti_windup = cfg[CFG_ANTI_WINDUP] > 0.5
     qp_mode = int(cfg[CFG_QP_MODE])
+    method = int(cfg[CFG_PREDICTOR])
+    ws, wsP = new_workspace()
     work = np.empty(6)
     u_new = np.empty(2)
     u_app = np.empty(2)
-    ref = np.empty((1, 2))
+    ref = np.empty(2)
     lead = np.empty(6)
     snap = np.empty((N, 6))
     zacc = np.zeros((N, 2))
@@ -141,7 +125,10 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
             u_app[1] = u[1]
             pinned_a = False
             pinned_d = False
-            tx, ty, curv = _tangent_curvature(xy, s, hint[i])
+            fr = a0 + hint[i]
+            tx = path_frames[fr, 0]
+            ty = path_frames[fr, 1]
+            curv = path_frames[fr, 2]
             # ---- lateral barrier: bisection on the steering
             if cbf_lat:
                 d, st, hl = cbf.lat_filter(x, u_app[0], u_app[1], plant_p, out[i, OUT_LAT], tx, ty, curv,
@@ -197,15 +184,15 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
             # ---- tracker, eq. (12). Anti-windup: it integrates from the applied input, and an input
             # a barrier overrides is pinned (the flow moves the other one alone). Without: it runs on
             # its own state as if unfiltered.
-            _ref_xy(prof[i], t + horizon - t_enter[i], s_enter[i], xy, s, ref)
+            ref[0], ref[1] = _ref_xy(prof[i], t + horizon - t_enter[i], s_enter[i], xy, s)
             if anti_windup:
                 u[0] = u_app[0]
                 u[1] = u_app[1]
-                nr_update(x, u, pred_p, ref[0], horizon, cfg[CFG_DT_PRED], cfg[CFG_ALPHA], cfg[CFG_DAMPING], h,
-                          u_lo, u_hi, u_new, not pinned_a, not pinned_d, tx, ty)
+                nr_update(x, u, pred_p, ref, horizon, cfg[CFG_DT_PRED], method, cfg[CFG_ALPHA], cfg[CFG_DAMPING], h,
+                          u_lo, u_hi, u_new, ws, wsP, not pinned_a, not pinned_d, tx, ty)
             else:
-                nr_update(x, u, pred_p, ref[0], horizon, cfg[CFG_DT_PRED], cfg[CFG_ALPHA], cfg[CFG_DAMPING], h,
-                          u_lo, u_hi, u_new, True, True)
+                nr_update(x, u, pred_p, ref, horizon, cfg[CFG_DT_PRED], method, cfg[CFG_ALPHA], cfg[CFG_DAMPING], h,
+                          u_lo, u_hi, u_new, ws, wsP, True, True)
             # ---- plant, eq. (1), applied input held over the step
             a = u_app[0]
             v = x[2]
@@ -224,13 +211,13 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
             u[1] = u_new[1]
             # ---- figures at t + h
             tn = t + h
-            _ref_xy(prof[i], tn - t_enter[i], s_enter[i], xy, s, ref)
-            err = math.sqrt((x[0] - ref[0, 0]) ** 2 + (x[1] - ref[0, 1]) ** 2)
+            rx, ry = _ref_xy(prof[i], tn - t_enter[i], s_enter[i], xy, s)
+            err = math.sqrt((x[0] - rx) ** 2 + (x[1] - ry) ** 2)
             sp, lat, hint[i] = project_local(xy, s, x[0], x[1], hint[i], 3, 12)
             out[i, OUT_S] = sp
             out[i, OUT_LAT] = lat
-            out[i, OUT_REFX] = ref[0, 0]
-            out[i, OUT_REFY] = ref[0, 1]
+            out[i, OUT_REFX] = rx
+            out[i, OUT_REFY] = ry
             out[i, OUT_ERR] = err
             out[i, OUT_A] = u_app[0]
             out[i, OUT_D] = u_app[1]

@@ -52,36 +52,43 @@ import math
 import numpy as np
 from numba import njit
 
-from nrtraffic.vehicle.bicycle import dynamics
+from nrtraffic.vehicle.bicycle import blend_weight, body_rates
 
 # filter outcomes
 INACTIVE, ACTIVE, FALLBACK = 0, 1, 2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def world_velocity(x):
     c = math.cos(x[4])
     s = math.sin(x[4])
     return x[2] * c - x[3] * s, x[2] * s + x[3] * c
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def world_acceleration(x, a, delta, p):
     """World-frame acceleration [m/s^2] of the centre of gravity under input (a, delta)."""
-    u = np.empty(2)
-    u[0] = a
-    u[1] = delta
-    f = np.empty(6)
-    dynamics(x, u, p, f)
+    vl_dot, vn_dot, _ = body_rates(x, a, delta, p)
     c = math.cos(x[4])
     s = math.sin(x[4])
     r = x[5]
-    ax = c * f[2] - s * f[3] + r * (-x[2] * s - x[3] * c)
-    ay = s * f[2] + c * f[3] + r * (x[2] * c - x[3] * s)
+    ax = c * vl_dot - s * vn_dot + r * (-x[2] * s - x[3] * c)
+    ay = s * vl_dot + c * vn_dot + r * (x[2] * c - x[3] * s)
     return ax, ay
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
+def accel_per_unit_a(x, delta, p):
+    """``d(world acceleration) / d a_l`` [1]: eq. (1) is affine in ``a_l`` (``v_l' = ... + a_l``;
+    in the kinematic blend also ``v_n' = ... + (1 - w) l_r tan(delta) / L a_l``)."""
+    w, _ = blend_weight(x[2], p)
+    dvn = (1.0 - w) * p[3] * math.tan(delta) / (p[2] + p[3])
+    c = math.cos(x[4])
+    s = math.sin(x[4])
+    return c - s * dvn, s + c * dvn
+
+
+@njit(cache=True, error_model="numpy")
 def _root(z, c):
     """``sign(z) (sqrt(|z| + c^2) - c)`` and its derivative with respect to ``z``.
 
@@ -96,14 +103,14 @@ def _root(z, c):
     return (val if z >= 0.0 else -val), d
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def long_barrier(dpx, dpy, dvx, dvy, d0, a_bar, c=0.0):
     """``h = sqrt(2 a_bar (r - d0)) + v_hat`` [m/s] (with the smoothing ``c`` of :func:`_root`)."""
     r = math.sqrt(dpx * dpx + dpy * dpy)
     return _root(2.0 * a_bar * (r - d0), c)[0] + (dpx * dvx + dpy * dvy) / r
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def long_constraint(x, delta, p, lead, d0, a_bar, gain, c=0.0):
     """The barrier condition as ``G a_l <= b``; returns ``(h, G, b)``.
 
@@ -124,9 +131,7 @@ def long_constraint(x, delta, p, lead, d0, a_bar, gain, c=0.0):
     h = sroot + vh
     # follower acceleration, affine in a_l: acc(a) = acc0 + a * acc1
     a0x, a0y = world_acceleration(x, 0.0, delta, p)
-    a1x, a1y = world_acceleration(x, 1.0, delta, p)
-    a1x -= a0x
-    a1y -= a0y
+    a1x, a1y = accel_per_unit_a(x, delta, p)
     # dh/dt = drift - (<dp, acc1> / r) a_l >= -gain h
     # d/dt root(2 a_bar (r - d0)) = root' * 2 a_bar * r_dot, r_dot = v_hat
     drift = 2.0 * a_bar * droot * vh + (dvx * dvx + dvy * dvy - vh * vh) / r + (dpx * (lead[4] - a0x) + dpy * (lead[5] - a0y)) / r
@@ -134,7 +139,7 @@ def long_constraint(x, delta, p, lead, d0, a_bar, gain, c=0.0):
     return h, G, drift + gain * h
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def long_filter_closed(a_star, G, b, a_lo, a_hi):
     """Exact solution of ``min (a - a*)^2 s.t. G a <= b, a_lo <= a <= a_hi``.
 
@@ -187,14 +192,14 @@ def long_filter_qp(a_star: float, G: float, b: float, a_lo: float, a_hi: float, 
     return a, ACTIVE if active else INACTIVE
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def lat_barrier(y, ydot, y_max, k):
     """``h = y_max - |y + k sgn(y) y_dot^2|`` [m] (sgn(0) := sgn(y_dot))."""
     sg = 1.0 if y > 0.0 else (-1.0 if y < 0.0 else (1.0 if ydot > 0.0 else (-1.0 if ydot < 0.0 else 0.0)))
     return y_max - abs(y + k * sg * ydot * ydot)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def lat_condition(x, a, delta, p, y, tx, ty, curv, y_max, k, gamma):
     """``dh/dt + gamma h^3`` of the lateral barrier under steering ``delta``; also returns h.
 
@@ -215,7 +220,7 @@ def lat_condition(x, a, delta, p, y, tx, ty, curv, y_max, k, gamma):
     return hdot + gamma * h * h * h, h
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def lat_filter(x, a, delta_star, p, y, tx, ty, curv, y_max, k, gamma, d_max, tol):
     """Closest admissible steering to ``delta_star`` in ``[-d_max, d_max]`` by bisection.
 

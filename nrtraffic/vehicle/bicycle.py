@@ -27,7 +27,7 @@ _M, _IZ, _LF, _LR, _CAF, _CAR, _VLO, _VHI, _TAU = range(9)
 _V_FLOOR = 0.1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def blend_weight(vl, p):
     """Weight of the dynamic model, smoothstep of ``v_l`` over [v_blend_low, v_blend_high];
     returns (w, dw/dv_l)."""
@@ -41,27 +41,18 @@ def blend_weight(vl, p):
     return s * s * (3.0 - 2.0 * s), 6.0 * s * (1.0 - s) / (hi - lo)
 
 
-@njit(cache=True)
-def dynamics(x, u, p, out):
-    """Write f(x, u) of eq. (1) (with the low-speed blend) into ``out`` (length 6)."""
+@njit(cache=True, error_model="numpy")
+def body_rates(x, a, d, p):
+    """``(v_l', v_n', psi_dot')`` of eq. (1) (with the low-speed blend) under input ``(a, d)``."""
     vl = x[2]
     vn = x[3]
-    psi = x[4]
     r = x[5]
-    a = u[0]
-    d = u[1]
     m = p[_M]
     Iz = p[_IZ]
     lf = p[_LF]
     lr = p[_LR]
     L = lf + lr
-    c = math.cos(psi)
-    s = math.sin(psi)
-    out[0] = vl * c - vn * s
-    out[1] = vl * s + vn * c
     vl_dot = r * vn + a
-    out[2] = vl_dot
-    out[4] = r
     w, _ = blend_weight(vl, p)
     cd = math.cos(d)
     # dynamic model (eq. 1)
@@ -75,8 +66,20 @@ def dynamics(x, u, p, out):
     tau = p[_TAU]
     r_kin = vl_dot * td / L + (vl * td / L - r) / tau
     vn_kin = lr * vl_dot * td / L + (lr * vl * td / L - vn) / tau
-    out[3] = w * vn_dyn + (1.0 - w) * vn_kin
-    out[5] = w * r_dyn + (1.0 - w) * r_kin
+    return vl_dot, w * vn_dyn + (1.0 - w) * vn_kin, w * r_dyn + (1.0 - w) * r_kin
+
+
+@njit(cache=True, error_model="numpy")
+def dynamics(x, u, p, out):
+    """Write f(x, u) of eq. (1) (with the low-speed blend) into ``out`` (length 6)."""
+    vl = x[2]
+    vn = x[3]
+    c = math.cos(x[4])
+    s = math.sin(x[4])
+    out[0] = vl * c - vn * s
+    out[1] = vl * s + vn * c
+    out[2], out[3], out[5] = body_rates(x, u[0], u[1], p)
+    out[4] = x[5]
 
 
 @njit(cache=True)
@@ -172,7 +175,7 @@ def jacobians(x, u, p, fx, fu):
     fu[5, 1] = w * Dr_d + wk * Kr_d
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def euler_step(x, u, p, h, work):
     """One forward-Euler plant step of length ``h`` [s] in place; ``v_l`` is clamped at 0
     (the vehicle brakes to a stop, it does not reverse). ``work`` is scratch of length 6."""
@@ -197,3 +200,107 @@ def simulate(x0, u, p, h, n_steps):
         euler_step(x, uu, p, h, work)
         out[k + 1] = x
     return out
+
+
+@njit(cache=True, error_model="numpy")
+def rhs_tangent(x, c, s, a, d, cd, sd, td, p, P, f, dP):
+    """``f(x, u)`` of eq. (1) and ``dP = f_x(x, u) P + f_u(x, u)`` in one pass (the predictor's
+    sensitivity recursion, :mod:`nrtraffic.control.nr_flow`).
+
+    The same maths as :func:`dynamics` and :func:`jacobians`, fused: the two tyre atans are
+    evaluated once, the heading's ``c, s`` (cos, sin of ``x[4]``) and the steering's ``cd, sd, td``
+    (cos, sin, tan of ``d`` [rad]; constant while the input is held) come from the caller, and only
+    the 15 non-zero entries of ``f_x`` enter the product. ``P`` (6, 2): sensitivity of the state to ``u = (a, d)``;
+    ``f`` (6,) and ``dP`` (6, 2) are written. Rows 0 and 1 of ``P`` (positions) feed nothing back
+    and are not read.
+    """
+    vl = x[2]
+    vn = x[3]
+    r = x[5]
+    m = p[_M]
+    Iz = p[_IZ]
+    lf = p[_LF]
+    lr = p[_LR]
+    Caf = p[_CAF]
+    Car = p[_CAR]
+    im2 = 2.0 / m
+    iz2 = 2.0 / Iz
+    iL = 1.0 / (lf + lr)
+    itau = 1.0 / p[_TAU]
+    f0 = vl * c - vn * s
+    f1 = vl * s + vn * c
+    vl_dot = r * vn + a
+    f[0] = f0
+    f[1] = f1
+    f[2] = vl_dot
+    f[4] = r
+    w, dw = blend_weight(vl, p)
+    wk = 1.0 - w
+    # row 3 (v_n) and row 5 (psi_dot) of f_x, f_u: A3*, A5*, B3*, B5*
+    f3 = 0.0
+    f5 = 0.0
+    A32 = A33 = A35 = A52 = A53 = A55 = 0.0
+    B30 = B31 = B50 = B51 = 0.0
+    if w > 0.0:
+        floor = vl <= _V_FLOOR
+        vd = _V_FLOOR if floor else vl
+        ivd = 1.0 / vd
+        qf = (vn + lf * r) * ivd
+        qr = (vn - lr * r) * ivd
+        gf = 1.0 / (1.0 + qf * qf)
+        gr = 1.0 / (1.0 + qr * qr)
+        Fcf = Caf * (d - math.atan(qf))
+        Fcr = -Car * math.atan(qr)
+        vn_dyn = -r * vl + im2 * (Fcf * cd + Fcr)
+        r_dyn = iz2 * (lf * Fcf * cd - lr * Fcr)
+        dFcf_dvl = 0.0 if floor else Caf * gf * qf * ivd
+        dFcf_dvn = -Caf * gf * ivd
+        dFcf_dr = lf * dFcf_dvn
+        dFcr_dvl = 0.0 if floor else Car * gr * qr * ivd
+        dFcr_dvn = -Car * gr * ivd
+        dFcr_dr = -lr * dFcr_dvn
+        f3 += w * vn_dyn
+        f5 += w * r_dyn
+        A32 += w * (-r + im2 * (dFcf_dvl * cd + dFcr_dvl)) + dw * vn_dyn
+        A33 += w * (im2 * (dFcf_dvn * cd + dFcr_dvn))
+        A35 += w * (-vl + im2 * (dFcf_dr * cd + dFcr_dr))
+        B31 += w * (im2 * (Caf * cd - Fcf * sd))
+        A52 += w * (iz2 * (lf * dFcf_dvl * cd - lr * dFcr_dvl)) + dw * r_dyn
+        A53 += w * (iz2 * (lf * dFcf_dvn * cd - lr * dFcr_dvn))
+        A55 += w * (iz2 * (lf * dFcf_dr * cd - lr * dFcr_dr))
+        B51 += w * (iz2 * lf * (Caf * cd - Fcf * sd))
+    if wk > 0.0:
+        sec2 = 1.0 + td * td
+        tL = td * iL
+        r_kin = vl_dot * tL + (vl * tL - r) * itau
+        vn_kin = lr * vl_dot * tL + (lr * vl * tL - vn) * itau
+        f3 += wk * vn_kin
+        f5 += wk * r_kin
+        A32 += wk * (lr * tL * itau) - dw * vn_kin
+        A33 += wk * (lr * r * tL - itau)
+        A35 += wk * (lr * vn * tL)
+        B30 += wk * (lr * tL)
+        B31 += wk * (lr * sec2 * iL * (vl_dot + vl * itau))
+        A52 += wk * (tL * itau) - dw * r_kin
+        A53 += wk * (r * tL)
+        A55 += wk * (vn * tL - itau)
+        B50 += wk * tL
+        B51 += wk * (sec2 * iL * (vl_dot + vl * itau))
+    f[3] = f3
+    f[5] = f5
+    for j in range(2):
+        p2 = P[2, j]
+        p3 = P[3, j]
+        p4 = P[4, j]
+        p5 = P[5, j]
+        dP[0, j] = c * p2 - s * p3 - f1 * p4
+        dP[1, j] = s * p2 + c * p3 + f0 * p4
+        dP[2, j] = r * p3 + vn * p5
+        dP[3, j] = A32 * p2 + A33 * p3 + A35 * p5
+        dP[4, j] = p5
+        dP[5, j] = A52 * p2 + A53 * p3 + A55 * p5
+    dP[2, 0] += 1.0
+    dP[3, 0] += B30
+    dP[3, 1] += B31
+    dP[5, 0] += B50
+    dP[5, 1] += B51
