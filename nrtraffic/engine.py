@@ -22,9 +22,10 @@ import pandas as pd
 
 from nrtraffic import __version__, metrics
 from nrtraffic.control import batch as kb
+from nrtraffic.control.nr_flow import PREDICTORS
 from nrtraffic.demand import shifted_exponential_arrivals
-from nrtraffic.geometry import LanePath
-from nrtraffic.planning.conflicts import MovementGeometry, boxes_overlap, classify
+from nrtraffic.geometry import LanePath, segment_frames, touching_pairs
+from nrtraffic.planning.conflicts import MovementGeometry, classify
 from nrtraffic.planning.coordinator import REAR_END_TOL_M, Coordinator, ScheduleInfeasible
 from nrtraffic.planning.profiles import packed_position
 from nrtraffic.results import VEHICLE_COLUMNS, RunResult, TrajectoryWriter
@@ -36,6 +37,11 @@ N_PROFILE_SEG = 81  # packed profile segments (closed forms: at most 3 arcs + cr
 STEADY_AFTER_S = 3.0  # DESIGN.md: steady-state tracking error counts after 3 s under control
 PATH_SPACING_M = 0.25  # sampling of the smoothed lane paths [m]
 LEADER_LOOKAHEAD_M = 200.0  # how far along its path a vehicle looks for its leader [m]
+# parts of the loop timed for ``wall_time_breakdown_s``: the compiled kernel (with the Python that
+# reads its results), SUMO's step (with its collision list), reading and writing SUMO's vehicles,
+# admission (coordinator; its rear-end QPs also as ``qp``), leader search, the own collision check,
+# and trajectory logging
+WALL_PHASES = ("kernel", "sumo_step", "sumo_io", "admission", "qp", "leaders", "collision_check", "logging")
 
 
 def _curve_speed(path, s_from: float, s_to: float, a_lat: float, window_m: float = 2.0) -> float:
@@ -159,6 +165,7 @@ class Engine:
         cfg[kb.CFG_H] = c.plant_step_s
         cfg[kb.CFG_HORIZON] = c.horizon_s
         cfg[kb.CFG_DT_PRED] = c.predictor_step_s
+        cfg[kb.CFG_PREDICTOR] = PREDICTORS[c.predictor]
         cfg[kb.CFG_ALPHA] = c.alpha
         cfg[kb.CFG_DAMPING] = c.damping
         cfg[kb.CFG_STEADY_AFTER] = STEADY_AFTER_S
@@ -182,6 +189,8 @@ class Engine:
         self.geometric_collisions: set[tuple[str, str]] = set()
         self.collision_log: list[dict] = []  # first contact of each pair: time, ids, who saw it
         self.t = 0.0
+        # wall time per part of the loop [s] (summary.json ``wall_time_breakdown_s``; benchmarks)
+        self.wall_breakdown = dict.fromkeys(WALL_PHASES, 0.0)
 
     # ------------------------------------------------------------------ set-up
     def _movement_table(self) -> None:
@@ -358,6 +367,8 @@ class Engine:
                else "{desc}: {n:.0f} sim s [{elapsed}, {rate_fmt}]")
         bar = tqdm(total=total, desc=sc.general.name, unit="sim s", disable=None if self.progress else True, leave=False,
                    bar_format=fmt)
+        clock = time.perf_counter
+        wall = self.wall_breakdown
         try:
             while True:
                 self.t = self.sumo.time
@@ -365,6 +376,7 @@ class Engine:
                     break
                 if self.t > 0 and self.sumo.pending() == 0 and not self.batch_ids:
                     break
+                t0 = clock()
                 for vid in self.sumo.departed():
                     rec = self.records.get(vid)
                     if rec is None:
@@ -378,6 +390,9 @@ class Engine:
                         self.uncontrolled.append(vid)
                         if rec.speed_profile:
                             scripted.append(vid)
+                self.snap = self.sumo.snapshot()
+                self._track_uncontrolled(dt)
+                t1 = clock()
                 blocked: set[str] = set()  # lanes whose first waiting vehicle could not be admitted
                 for vid in list(approaching):
                     rec = self.records[vid]
@@ -389,20 +404,33 @@ class Engine:
                     elif state == "held":
                         blocked.add(rec.approach)
                         rec.t_held += dt
-                self._track_uncontrolled(dt)
+                t2 = clock()
                 self._leaders()
+                t3 = clock()
                 self._collisions_geometric()
+                t4 = clock()
                 if step % log_every == 0:
                     self._log()
+                t5 = clock()
                 self._advance(dt)
+                t6 = clock()
                 self._push_and_release()
                 self._script(scripted, self.t + dt)
+                t7 = clock()
                 self.sumo.step()
                 for a, b, kind in self.sumo.collisions():
                     pair = tuple(sorted((a, b)))
                     if pair not in self.collision_pairs:
                         self.collision_pairs.add(pair)
                         self.collision_log.append({"t": self.sumo.time, "pair": list(pair), "source": f"sumo:{kind}"})
+                t8 = clock()
+                wall["sumo_io"] += (t1 - t0) + (t7 - t6)
+                wall["admission"] += t2 - t1
+                wall["leaders"] += t3 - t2
+                wall["collision_check"] += t4 - t3
+                wall["logging"] += t5 - t4
+                wall["kernel"] += t6 - t5
+                wall["sumo_step"] += t8 - t7
                 step += 1
                 bar.update(dt)
             self.t = self.sumo.time
@@ -418,6 +446,8 @@ class Engine:
         self.path_off = np.concatenate([[0], np.cumsum([len(a) for a in xy])]).astype(np.int64)
         self.path_xy = np.ascontiguousarray(np.concatenate(xy))
         self.path_s = np.ascontiguousarray(np.concatenate([self.paths[k].path.s for k in self.path_names]))
+        self.path_frames = np.ascontiguousarray(np.concatenate(
+            [segment_frames(self.paths[k].path.xy, self.paths[k].path.s) for k in self.path_names]))
 
     def _alloc(self, n: int) -> None:
         self.X = np.zeros((n, 6))
@@ -461,14 +491,18 @@ class Engine:
         entry and admission is tried again every step, so that the lane's FIFO order is kept)."""
         rec = self.records[vid]
         mv = self.paths[rec.movement]
-        lane, pos = self.sumo.lane_position(vid)
+        tab = self.snap
+        k = tab.row.get(vid)
+        if k is None:
+            return "waiting"
+        lane, pos = tab.lane[k], float(tab.lane_pos[k])
         if lane not in mv.lane_offset:
             return "waiting"
         s_cg = mv.s_of(lane, pos) - self.params.cg_to_front
         if s_cg < mv.s_control - 1e-6:
             return "waiting"
-        xf, yf, psi = self.sumo.front_pose(vid)
-        v = self.sumo.speed(vid)
+        xf, yf, psi = float(tab.x[k]), float(tab.y[k]), float(tab.psi[k])
+        v = float(tab.speed[k])
         cg = self.params.cg_to_front
         x0 = np.array([xf - cg * math.cos(psi), yf - cg * math.sin(psi), v, 0.0, psi + rec.heading_offset, 0.0])
         s_proj, lat0 = mv.path.project(x0[:2])
@@ -484,6 +518,7 @@ class Engine:
                 self.sumo.hold_speed(vid, 0.0)
             return "held"
         rec.status = "controlled"
+        self.sumo.take_over(vid)
         rec.t_enter, rec.v_enter, rec.s_enter = self.t, v, s_proj
         rec.t_merge_planned, rec.v_merge_planned = asg.t_merge, asg.profile.v_m
         rec.predecessor, rec.relation, rec.binding = asg.predecessor, asg.relation, asg.binding
@@ -500,19 +535,20 @@ class Engine:
         their lane positions, speeds and accelerations each step."""
         if not self.uncontrolled:
             return
-        live = set(self.sumo.vehicle_ids())
+        tab = self.snap
         cg = self.params.cg_to_front
         for vid in list(self.uncontrolled):
             rec = self.records[vid]
-            if vid not in live:
+            k = tab.row.get(vid)
+            if k is None:
                 self.uncontrolled.remove(vid)
                 continue
             mv = self.paths[rec.movement]
-            lane, pos = self.sumo.lane_position(vid)
+            lane, pos = tab.lane[k], float(tab.lane_pos[k])
             if lane not in mv.lane_offset:
                 continue
             s_new = mv.s_of(lane, pos) - cg
-            v, a = self.sumo.speed(vid), self.sumo.acceleration(vid)
+            v, a = float(tab.speed[k]), float(tab.accel[k])
             s_prev = rec.s_last
             if math.isnan(rec.t_enter) and s_new >= mv.s_control:
                 frac = 0.0 if math.isnan(s_prev) or s_new <= s_prev else (mv.s_control - s_prev) / (s_new - s_prev)
@@ -544,20 +580,19 @@ class Engine:
         self.lead_idx[:] = kb.NO_LEADER
         self.gap[:] = np.nan
         index = {v: i for i, v in enumerate(self.batch_ids)}
+        tab = self.snap
         by_lane: dict[str, list] = {}
-        front: dict[str, tuple[str, float]] = {}
-        for vid in self.sumo.vehicle_ids():
-            lane, pos = self.sumo.lane_position(vid)
+        for lane, pos, vid in zip(tab.lane, tab.lane_pos.tolist(), tab.ids):
             by_lane.setdefault(lane, []).append((pos, vid))
-            front[vid] = (lane, pos)
         for lst in by_lane.values():
             lst.sort()
         ext_cache: dict[str, tuple] = {}
         for vid, i in index.items():
-            if vid not in front:
+            k = tab.row.get(vid)
+            if k is None:
                 continue
             mv = self.paths[self.records[vid].movement]
-            lane, pos = front[vid]
+            lane, pos = tab.lane[k], float(tab.lane_pos[k])
             if lane not in mv.lane_offset:
                 continue
             k0 = mv.lanes.index(lane)
@@ -580,8 +615,9 @@ class Engine:
                 self.lead_idx[i] = index[lead]
             else:
                 if lead not in ext_cache:
-                    xf, yf, psi = self.sumo.front_pose(lead)
-                    v, a = self.sumo.speed(lead), self.sumo.acceleration(lead)
+                    j = tab.row[lead]
+                    xf, yf, psi = float(tab.x[j]), float(tab.y[j]), float(tab.psi[j])
+                    v, a = float(tab.speed[j]), float(tab.accel[j])
                     c, sn = math.cos(psi), math.sin(psi)
                     ext_cache[lead] = (xf - p.cg_to_front * c, yf - p.cg_to_front * sn, v * c, v * sn, a * c, a * sn)
                 self.lead_idx[i] = kb.EXTERNAL_LEADER
@@ -594,22 +630,17 @@ class Engine:
     def _collisions_geometric(self) -> None:
         """Own collision check: oriented rectangles (length x width) of every pair of vehicles
         whose circumscribed circles meet, separating-axis test; counted once per pair."""
-        ids = list(self.sumo.vehicle_ids())
+        tab = self.snap
+        ids = tab.ids
         if len(ids) < 2:
             return
         p = self.params
-        poses = np.array([self.sumo.front_pose(v) for v in ids])
-        c, sn = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-        cx = poses[:, 0] - 0.5 * p.length * c
-        cy = poses[:, 1] - 0.5 * p.length * sn
-        d2 = (cx[:, None] - cx[None, :]) ** 2 + (cy[:, None] - cy[None, :]) ** 2
-        # two rectangles can touch only when their circumscribed circles do
-        ii, jj = np.nonzero(np.triu(d2 <= p.length * p.length + p.width * p.width, 1))
-        if ii.size == 0:
-            return
-        touch = boxes_overlap(np.c_[cx[ii], cy[ii]], poses[ii, 2], np.c_[cx[jj], cy[jj]], poses[jj, 2], p.length,
-                              p.width)
-        for i, j in zip(ii[touch], jj[touch]):
+        psi = tab.psi
+        c, sn = np.cos(psi), np.sin(psi)
+        cx = tab.x - 0.5 * p.length * c
+        cy = tab.y - 0.5 * p.length * sn
+        ii, jj = touching_pairs(cx, cy, psi, p.length, p.width)
+        for i, j in zip(ii.tolist(), jj.tolist()):
             pair = tuple(sorted((ids[i], ids[j])))
             if pair not in self.geometric_collisions:
                 self.geometric_collisions.add(pair)
@@ -620,7 +651,7 @@ class Engine:
             return
         kb.advance(self.X, self.U, self.t, self.n_sub, self.cfg, self.plant_p, self.pred_p, self.u_lo, self.u_hi,
                    self.prof, self.t_enter, self.s_enter, self.path_id, self.path_off, self.path_xy, self.path_s,
-                   self.hint, self.lead_idx, self.lead_ext, self.acc, self.out)
+                   self.path_frames, self.hint, self.lead_idx, self.lead_ext, self.acc, self.out)
         if not np.all(np.isfinite(self.X)):
             bad = [v for v, ok in zip(self.batch_ids, np.isfinite(self.X).all(axis=1)) if not ok]
             raise FloatingPointError(f"vehicle state became non-finite at t={self.t:.2f} s: {', '.join(bad)}")
@@ -667,7 +698,7 @@ class Engine:
             return
         cg = self.params.cg_to_front
         keep = np.ones(len(self.batch_ids), dtype=bool)
-        live = set(self.sumo.vehicle_ids())
+        live = self.snap.row
         for i, vid in enumerate(self.batch_ids):
             rec = self.records[vid]
             if vid not in live:
@@ -690,7 +721,7 @@ class Engine:
         """SUMO-driven vehicles with a speed profile: the desired speed for the next step."""
         if not scripted:
             return
-        live = set(self.sumo.vehicle_ids())
+        live = self.snap.row
         for vid in list(scripted):
             if vid not in live:
                 scripted.remove(vid)
@@ -797,6 +828,8 @@ class Engine:
             "cbf_lat_active_frac": float((adm["cbf_lat_active_frac"] * adm["plant_steps"]).sum() / steps) if steps else None,
             "cbf_long_fallbacks": int(adm["cbf_long_fallbacks"].sum()),
             "cbf_lat_fallbacks": int(adm["cbf_lat_fallbacks"].sum()),
+            "wall_time_breakdown_s": {**self.wall_breakdown,
+                                      "qp": getattr(getattr(self, "coord", None), "qp_wall_s", 0.0)},
             "nrtraffic_version": __version__,
             "sumo_version": sumo_version(),
         }

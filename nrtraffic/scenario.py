@@ -63,7 +63,8 @@ class Controller:
     """``[controller]``: plant integration, predictor and Newton-Raphson flow (paper s. 3.1, 4.1)."""
 
     plant_step_s: float = 0.005  # forward-Euler step of the plant (paper dt)
-    predictor_step_s: float = 0.001  # forward-Euler step of the predictor (paper Delta t)
+    predictor: str = "euler"  # integrator of the predictor: "euler" (the paper's) or "rk4" (README, Method)
+    predictor_step_s: float = 0.001  # nominal step of the predictor (paper Delta t, for Euler)
     horizon_s: float = 0.2  # prediction horizon T (not given by the paper; see README)
     alpha: float = 100.0  # speed-up of the update law, eq. (12)
     damping: float = 1e-6  # relative damping of the regularised inverse
@@ -78,6 +79,8 @@ class Controller:
                 raise ScenarioError(f"controller.{k} must be > 0")
         if self.horizon_s < self.predictor_step_s:
             raise ScenarioError("controller.horizon_s must be at least controller.predictor_step_s")
+        if self.predictor not in ("euler", "rk4"):
+            raise ScenarioError(f"controller.predictor must be 'euler' or 'rk4', got {self.predictor!r}")
         if not (self.a_min_mps2 < 0 < self.a_max_mps2):
             raise ScenarioError("controller needs a_min_mps2 < 0 < a_max_mps2")
         if self.damping < 0:

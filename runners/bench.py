@@ -16,12 +16,13 @@ import numpy as np
 from numba import njit
 
 from nrtraffic import scenario
-from nrtraffic.control.nr_flow import nr_update
+from nrtraffic.control.nr_flow import EULER, PREDICTORS, RK4, new_workspace, nr_update
 from nrtraffic.geometry import LanePath
 from nrtraffic.vehicle.bicycle import euler_step
 from nrtraffic.vehicle.params import preset
 
 ROOT = Path(__file__).resolve().parent.parent
+JUNCTION_RK4_STEP_S = 0.05  # the junction scenarios' predictor step (controller.predictor_step_s)
 
 
 def _best(fn, repeat=5, number=200):
@@ -35,9 +36,10 @@ def _best(fn, repeat=5, number=200):
 
 
 @njit
-def _loop_tracker(n, x, u, pp, ref, horizon, dt_pred, lo, hi, un):
+def _loop_tracker(n, x, u, pp, ref, horizon, dt_pred, method, lo, hi, un, ws, wsP):
     for _ in range(n):
-        nr_update(x, u, pp, ref, horizon, dt_pred, 100.0, 1e-6, 0.005, lo, hi, un, True, True, 1.0, 0.0)
+        nr_update(x, u, pp, ref, horizon, dt_pred, method, 100.0, 1e-6, 0.005, lo, hi, un, ws, wsP, True, True, 1.0,
+                  0.0)
 
 
 @njit
@@ -46,9 +48,9 @@ def _loop_plant(n, x, u, p, w):
         euler_step(x, u, p, 0.005, w)
 
 
-def bench_kernels(horizon=0.2, dt_pred=0.001) -> dict:
-    """Per-call cost of the tracker update (predictor + sensitivities + update law) and of a plant
-    step, each measured inside a compiled loop (no Python dispatch in the figure)."""
+def bench_kernels(horizon=0.2) -> dict:
+    """Per-call cost [us] of the tracker update (predictor + sensitivities + update law) with each
+    predictor, and of a plant step, each measured inside a compiled loop (no Python dispatch)."""
     P = preset("paper")
     p, pp = P.as_array(), P.with_mass_factor(2.0).as_array()
     x = np.array([0.0, 0.0, 13.4, 0.01, 0.1, 0.01])
@@ -57,19 +59,25 @@ def bench_kernels(horizon=0.2, dt_pred=0.001) -> dict:
     w = np.empty(6)
     lo, hi = np.array([-6.0, -0.78]), np.array([3.0, 0.78])
     ref = np.array([2.7, 0.3])
-    n = 2000
-    _loop_tracker(1, x, u, pp, ref, horizon, dt_pred, lo, hi, un)
-    t_tracker = _best(lambda: _loop_tracker(n, x, u, pp, ref, horizon, dt_pred, lo, hi, un), number=1) / n
+    ws = new_workspace()
+    out = {}
+    for name, method, dt_pred, n in (("euler", EULER, 0.001, 2000), ("rk4", RK4, JUNCTION_RK4_STEP_S, 20000)):
+        _loop_tracker(1, x, u, pp, ref, horizon, dt_pred, method, lo, hi, un, *ws)
+        out[f"tracker_{name}_us"] = _best(lambda: _loop_tracker(n, x, u, pp, ref, horizon, dt_pred, method, lo, hi,
+                                                                un, *ws), number=1) / n * 1e6
     xp = x.copy()
     _loop_plant(1, xp, u, p, w)
-    t_plant = _best(lambda: _loop_plant(200000, xp, u, p, w), number=1) / 200000
-    return {"tracker_step_us": t_tracker * 1e6, "plant_step_us": t_plant * 1e6}
+    out["plant_step_us"] = _best(lambda: _loop_plant(200000, xp, u, p, w), number=1) / 200000 * 1e6
+    return out
 
 
-def bench_batch(n_vehicles: int, horizon=0.2, n_sub=20, barriers: bool = True) -> float:
-    """Seconds per vehicle per simulated second of the batched kernel (synthetic straight road,
-    vehicles 20 m apart, each following the one ahead: both barriers evaluated every plant step)."""
+def bench_batch(n_vehicles: int, horizon=0.2, n_sub=20, barriers: bool = True, predictor: str = "rk4",
+                dt_pred: float = JUNCTION_RK4_STEP_S) -> float:
+    """Wall time [us] of the batched kernel per vehicle per plant step (synthetic straight road,
+    vehicles 20 m apart at 13.4 m/s, each following the one ahead: both barriers evaluated every
+    plant step)."""
     from nrtraffic.control import batch as kb
+    from nrtraffic.geometry import segment_frames
 
     P = preset("paper")
     p, pp = P.as_array(), P.with_mass_factor(2.0).as_array()
@@ -84,8 +92,8 @@ def bench_batch(n_vehicles: int, horizon=0.2, n_sub=20, barriers: bool = True) -
     prof[:, :, 2] = 13.4
     s_enter = X[:, 0].copy()
     cfg = np.zeros(kb.N_CFG)
-    cfg[[kb.CFG_H, kb.CFG_HORIZON, kb.CFG_DT_PRED, kb.CFG_ALPHA, kb.CFG_DAMPING, kb.CFG_STEADY_AFTER]] = (
-        0.005, horizon, 0.001, 100.0, 1e-6, 3.0)
+    cfg[[kb.CFG_H, kb.CFG_HORIZON, kb.CFG_DT_PRED, kb.CFG_ALPHA, kb.CFG_DAMPING, kb.CFG_STEADY_AFTER,
+         kb.CFG_PREDICTOR]] = (0.005, horizon, dt_pred, 100.0, 1e-6, 3.0, PREDICTORS[predictor])
     cfg[[kb.CFG_CBF_LONG, kb.CFG_CBF_LAT, kb.CFG_D0, kb.CFG_A_BAR, kb.CFG_LONG_GAIN, kb.CFG_Y_MAX, kb.CFG_K_LAT,
          kb.CFG_GAMMA, kb.CFG_BISECT_TOL, kb.CFG_ANTI_WINDUP, kb.CFG_ROOT_C]] = (
         float(barriers), float(barriers), 6.8, 3.0, 1.0, 0.5, 0.25, 15.0, 1e-6, 1.0, 0.1)
@@ -96,13 +104,14 @@ def bench_batch(n_vehicles: int, horizon=0.2, n_sub=20, barriers: bool = True) -
     out[:, kb.OUT_S] = s_enter
     pid = np.zeros(N, dtype=np.int64)
     off = np.array([0, len(path.s)], dtype=np.int64)
+    frames = segment_frames(path.xy, path.s)
     hint = np.searchsorted(path.s, s_enter).astype(np.int64) - 1
     hint[hint < 0] = 0
     lo, hi = np.array([-6.0, -0.78]), np.array([3.0, 0.78])
 
     def step(t):
-        kb.advance(X, U, t, n_sub, cfg, p, pp, lo, hi, prof, np.zeros(N), s_enter, pid, off, path.xy, path.s, hint,
-                   lead_idx, np.zeros((N, 6)), acc, out)
+        kb.advance(X, U, t, n_sub, cfg, p, pp, lo, hi, prof, np.zeros(N), s_enter, pid, off, path.xy, path.s, frames,
+                   hint, lead_idx, np.zeros((N, 6)), acc, out)
 
     step(0.0)
     n_steps = 20
@@ -110,8 +119,7 @@ def bench_batch(n_vehicles: int, horizon=0.2, n_sub=20, barriers: bool = True) -
     for k in range(n_steps):
         step(0.1 * (k + 1))
     wall = time.perf_counter() - t0
-    sim = n_steps * n_sub * 0.005
-    return wall / sim / N
+    return wall / (n_steps * n_sub * N) * 1e6
 
 
 def bench_run(scenario_path: Path, duration_s: float | None = None) -> dict:

@@ -7,7 +7,7 @@ a replay on another machine (other floating-point kernels) passes when the run a
 precision:
 
 - ``summary.json``: every number except those of the wall clock (``wall_time_s``,
-  ``real_time_factor``) and the versions;
+  ``real_time_factor``, ``wall_time_breakdown_s``) and the versions;
 - ``vehicles.csv``: the same vehicles; every number of every vehicle, and the text columns equal;
 - ``trajectories.parquet``: the same log instants per vehicle; every number at every instant.
 
@@ -30,7 +30,7 @@ from nrtraffic.results import read_parquet_file
 
 RTOL = 1e-6
 ATOL = 1e-6
-WALL_CLOCK = {"wall_time_s", "real_time_factor", "nrtraffic_version", "sumo_version"}
+WALL_CLOCK = {"wall_time_s", "real_time_factor", "wall_time_breakdown_s", "nrtraffic_version", "sumo_version"}
 
 
 class ReplayError(ValueError):

@@ -22,7 +22,8 @@ def test_pushed_pose_and_speed_are_what_sumo_reports(tmp_path, paper_curved_path
     write_routes(routes, VehicleType(), {"main": ("lead_in", "road", "exit")}, [("v", "main", 0.0, 13.4)])
     with SumoSession(net, routes, 0.1, 7, tripinfo=tmp_path / "ti.xml") as sumo:
         sumo.step()
-        assert "v" in sumo.vehicle_ids()
+        assert "v" in sumo.departed() and "v" in sumo.vehicle_ids()
+        sumo.take_over("v")
         rng = np.random.default_rng(0)
         for k in range(40):
             s = 20.0 + 9.0 * k  # along the arc [m]
@@ -40,6 +41,12 @@ def test_pushed_pose_and_speed_are_what_sumo_reports(tmp_path, paper_curved_path
             assert psis == pytest.approx(psi, abs=1e-4)
             assert sumo.speed("v") == pytest.approx(speed, abs=1e-6)
             assert sumo.collisions() == []
+            # the batched read reports the same as the single getters
+            tab = sumo.snapshot()
+            k = tab.row["v"]
+            assert (tab.x[k], tab.y[k], tab.psi[k]) == pytest.approx((xs, ys, psis), abs=1e-12)
+            assert (tab.lane[k], tab.lane_pos[k]) == sumo.lane_position("v")
+            assert tab.speed[k] == sumo.speed("v") and tab.accel[k] == sumo.acceleration("v")
         # handed back, SUMO drives it to the end of its route
         sumo.release("v")
         for _ in range(400):

@@ -32,6 +32,7 @@ Relations between movements come from :mod:`nrtraffic.planning.conflicts`.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 from nrtraffic.planning.conflicts import CONFLICT
@@ -65,12 +66,15 @@ class CoordinatorSettings:
         held back; when that leaves the bounds the schedule is infeasible and the car waits at the
         zone entry). At a junction, "free" lets held-back cars cross slowly, which holds the zone
         longer and holds back the next ones more: throughput collapses under load.
+    qp_solver : qpsolvers backend of the rear-end constrained profile's QP: ``"daqp"`` (dense
+        dual active set, the default: these QPs have at most 81 variables) or ``"osqp"``.
     """
 
     rear_end_spacing_m: float = 10.0
     min_merge_headway_s: float = 0.0
     earliest: str = "entry_speed"
     terminal_speed: str = "free"
+    qp_solver: str = "daqp"
 
     def __post_init__(self) -> None:
         if self.rear_end_spacing_m < 0 or self.min_merge_headway_s < 0:
@@ -79,6 +83,8 @@ class CoordinatorSettings:
             raise ValueError(f"coordinator.earliest must be 'entry_speed' or 'max_speed', got {self.earliest!r}")
         if self.terminal_speed not in ("free", "fixed"):
             raise ValueError(f"coordinator.terminal_speed must be 'free' or 'fixed', got {self.terminal_speed!r}")
+        if self.qp_solver not in ("daqp", "osqp"):
+            raise ValueError(f"coordinator.qp_solver must be 'daqp' or 'osqp', got {self.qp_solver!r}")
 
 
 @dataclass(frozen=True)
@@ -107,6 +113,7 @@ class Coordinator:
     relations: dict = field(default_factory=dict)  # (movement, movement) -> relation
     _last_on_lane: dict[str, Assignment] = field(default_factory=dict)
     _last_on_movement: dict[str, Assignment] = field(default_factory=dict)
+    qp_wall_s: float = 0.0  # wall time spent in the rear-end QPs [s] (for the benchmarks)
 
     def schedule(self, vehicle_id: str, lane: str, t0: float, v0: float, D: float, movement: str = "",
                  zone_length_m: float = 0.0, v_limit: float = float("inf")) -> Assignment:
@@ -179,9 +186,13 @@ class Coordinator:
             return prof, intrusion
         vm = None if (self.settings.terminal_speed == "free" and prof.kind != "fixed_speed") else prof.v_m
         try:
-            safe = rear_end_constrained(t0, v0, D, t_m - t0, self.bounds, leader_pos, t_m, gap, vm=vm)
+            tq = time.perf_counter()
+            safe = rear_end_constrained(t0, v0, D, t_m - t0, self.bounds, leader_pos, t_m, gap, vm=vm,
+                                        solver=self.settings.qp_solver)
         except InfeasibleProfile:
             return prof, intrusion
+        finally:
+            self.qp_wall_s += time.perf_counter() - tq
         return safe, rear_end_violation(safe, leader_pos, t_m, gap)
 
     def _profile(self, vehicle_id: str, t0: float, v0: float, D: float, t_m: float, v_limit: float) -> Profile:

@@ -247,14 +247,14 @@ def rear_end_violation(prof: Profile, leader_pos, t_end: float, gap_m: float, dt
 
 def rear_end_constrained(t0: float, v0: float, D: float, T: float, bounds: PlanBounds, leader_pos, t_end: float,
                          gap_m: float, vm: float | None = None, step_s: float = 0.5, max_intervals: int = 80,
-                         solver: str = "osqp") -> Profile:
+                         solver: str = "daqp") -> Profile:
     """Energy-optimal profile that also stays ``gap_m`` behind the leader's plan.
 
     Minimises ``J = 1/2 int_0^T u^2`` (exact for piecewise-linear ``u``) over the values of ``u`` at
     ``N = min(max_intervals, ceil(T / step_s))`` uniform intervals, subject to ``p(T) = D``,
     ``v(T) = vm`` (or ``u(T) = 0`` when ``vm`` is None: free terminal speed), the speed and
     acceleration bounds at the grid instants, and ``p(tau_k) <= leader_pos(t0 + tau_k) - gap_m``
-    at every grid instant up to ``t_end`` [s]. One QP through qpsolvers (OSQP by default).
+    at every grid instant up to ``t_end`` [s]. One QP through qpsolvers (DAQP by default, dense).
 
     Raises :class:`InfeasibleProfile` when no such profile exists (or the solver fails).
     """

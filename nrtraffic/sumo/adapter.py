@@ -14,6 +14,8 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 _ACTIVE = None
 DEFAULT_SPEED_MODE = 31  # SUMO's default: all safety checks on
 
@@ -48,6 +50,27 @@ def nav_angle(psi: float) -> float:
 def heading_from_nav(angle_deg: float) -> float:
     """SUMO navigation angle [deg] -> heading [rad, counter-clockwise from +x], in (-pi, pi]."""
     return math.atan2(math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg)))
+
+
+@dataclass
+class VehicleTable:
+    """Every vehicle in the network at one instant, read in one batch (:meth:`SumoSession.snapshot`).
+
+    ``ids`` and ``lane`` are lists, the rest arrays in the same order: ``lane_pos`` front-bumper
+    position along the lane [m], ``x``, ``y`` front bumper [m], ``psi`` heading [rad],
+    ``speed`` [m/s], ``accel`` longitudinal acceleration of the last step [m/s^2]; ``row`` maps an
+    id to its row.
+    """
+
+    ids: list
+    lane: list
+    lane_pos: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    psi: np.ndarray
+    speed: np.ndarray
+    accel: np.ndarray
+    row: dict
 
 
 @dataclass(frozen=True)
@@ -131,6 +154,10 @@ class SumoSession:
         self.step_length = float(step_length_s)
         self.traci = None
         self._pending_moves = False
+        from libsumo import constants as tc
+
+        self._vars = (tc.VAR_LANE_ID, tc.VAR_LANEPOSITION, tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED,
+                      tc.VAR_ACCELERATION)
 
     # ---- life cycle
     def start(self) -> "SumoSession":
@@ -186,7 +213,31 @@ class SumoSession:
         return self.traci.simulation.getTime()
 
     def departed(self) -> tuple[str, ...]:
-        return self.traci.simulation.getDepartedIDList()
+        """Vehicles inserted in the last step; each is subscribed to the variables that
+        :meth:`snapshot` reads."""
+        ids = self.traci.simulation.getDepartedIDList()
+        sub = self.traci.vehicle.subscribe
+        for vid in ids:
+            sub(vid, self._vars)
+        return ids
+
+    def snapshot(self) -> VehicleTable:
+        """Lane, lane position, front-bumper pose, speed and acceleration of every vehicle in the
+        network, from one batched read of SUMO's subscriptions (updated by every step)."""
+        res = self.traci.vehicle.getAllSubscriptionResults()
+        n = len(res)
+        ids = list(res)
+        lane = [""] * n
+        num = np.empty((n, 6))
+        kl, kp, kxy, ka, kv, kacc = self._vars
+        for i, r in enumerate(res.values()):
+            lane[i] = r[kl]
+            xy = r[kxy]
+            num[i] = (r[kp], xy[0], xy[1], r[ka], r[kv], r[kacc])
+        ang = np.radians(num[:, 3])
+        psi = np.arctan2(np.cos(ang), np.sin(ang))  # navigation angle -> heading (heading_from_nav)
+        return VehicleTable(ids, lane, num[:, 0], num[:, 1], num[:, 2], psi, num[:, 4], num[:, 5],
+                            {v: i for i, v in enumerate(ids)})
 
     def arrived(self) -> tuple[str, ...]:
         return self.traci.simulation.getArrivedIDList()
@@ -250,12 +301,16 @@ class SumoSession:
         """Let SUMO drive the vehicle at a fixed desired speed (safety checks stay on)."""
         self.traci.vehicle.setSpeed(vid, speed)
 
+    def take_over(self, vid: str) -> None:
+        """Make a vehicle remote-controlled: speed mode 0, so that SUMO does not cap the speeds
+        :meth:`push_pose` sets (once per vehicle; :meth:`release` restores it)."""
+        self.traci.vehicle.setSpeedMode(vid, 0)
+
     def push_pose(self, vid: str, x_front: float, y_front: float, psi: float, speed: float) -> None:
-        """Place a remote-controlled vehicle: front bumper at (x, y) [m], heading psi [rad], true
-        speed [m/s] (speed mode 0 so that SUMO does not cap it)."""
+        """Place a remote-controlled vehicle (:meth:`take_over`): front bumper at (x, y) [m],
+        heading psi [rad], true speed [m/s]."""
         v = self.traci.vehicle
         try:
-            v.setSpeedMode(vid, 0)
             v.setSpeed(vid, max(speed, 0.0))
             self._pending_moves = True
             v.moveToXY(vid, "", 0, x_front, y_front, nav_angle(psi), 1)
