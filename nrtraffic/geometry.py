@@ -121,8 +121,10 @@ def _densify(pts: np.ndarray, max_segment: float) -> np.ndarray:
 
 def _dedupe(pts: np.ndarray, min_spacing: float) -> np.ndarray:
     keep = [0]
-    for i in range(1, len(pts)):
-        if np.hypot(*(pts[i] - pts[keep[-1]])) > min_spacing:
+    xy = pts.tolist()
+    for i in range(1, len(xy)):
+        kx, ky = xy[keep[-1]]
+        if math.hypot(xy[i][0] - kx, xy[i][1] - ky) > min_spacing:
             keep.append(i)
     if keep[-1] != len(pts) - 1 and len(keep) > 1:
         keep[-1] = len(pts) - 1  # keep the true end point

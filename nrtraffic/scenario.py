@@ -77,8 +77,8 @@ class Controller:
         for k in ("plant_step_s", "predictor_step_s", "horizon_s", "alpha", "predictor_mass_factor", "steer_max_rad"):
             if getattr(self, k) <= 0:
                 raise ScenarioError(f"controller.{k} must be > 0")
-        if self.horizon_s < self.predictor_step_s:
-            raise ScenarioError("controller.horizon_s must be at least controller.predictor_step_s")
+        if self.predictor == "euler" and self.horizon_s < self.predictor_step_s:
+            raise ScenarioError("controller.horizon_s must be at least controller.predictor_step_s (Euler predictor)")
         if self.predictor not in ("euler", "rk4"):
             raise ScenarioError(f"controller.predictor must be 'euler' or 'rk4', got {self.predictor!r}")
         if not (self.a_min_mps2 < 0 < self.a_max_mps2):

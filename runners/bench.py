@@ -6,8 +6,11 @@ demand, tracker step against plant step), not the absolute times.
 
 from __future__ import annotations
 
+import json
 import platform
 import resource
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -16,13 +19,13 @@ import numpy as np
 from numba import njit
 
 from nrtraffic import scenario
-from nrtraffic.control.nr_flow import EULER, PREDICTORS, RK4, new_workspace, nr_update
+from nrtraffic.control.nr_flow import EULER, PREDICTORS, RK4, new_workspace, nr_update, predictor_steps
 from nrtraffic.geometry import LanePath
 from nrtraffic.vehicle.bicycle import euler_step
 from nrtraffic.vehicle.params import preset
 
 ROOT = Path(__file__).resolve().parent.parent
-JUNCTION_RK4_STEP_S = 0.05  # the junction scenarios' predictor step (controller.predictor_step_s)
+JUNCTION_RK4_STEP_S = 0.1  # the junction scenarios' nominal predictor step (controller.predictor_step_s)
 
 
 def _best(fn, repeat=5, number=200):
@@ -52,7 +55,7 @@ def bench_kernels(horizon=0.2) -> dict:
     """Per-call cost [us] of the tracker update (predictor + sensitivities + update law) with each
     predictor, and of a plant step, each measured inside a compiled loop (no Python dispatch)."""
     P = preset("paper")
-    p, pp = P.as_array(), P.with_mass_factor(2.0).as_array()
+    p = pp = P.as_array()  # as in the junction scenarios: no predictor model error
     x = np.array([0.0, 0.0, 13.4, 0.01, 0.1, 0.01])
     u = np.array([0.1, 0.01])
     un = np.empty(2)
@@ -68,6 +71,7 @@ def bench_kernels(horizon=0.2) -> dict:
     xp = x.copy()
     _loop_plant(1, xp, u, p, w)
     out["plant_step_us"] = _best(lambda: _loop_plant(200000, xp, u, p, w), number=1) / 200000 * 1e6
+    out["rk4_steps"] = predictor_steps(x[2], pp, horizon, JUNCTION_RK4_STEP_S, RK4)
     return out
 
 
@@ -75,12 +79,12 @@ def bench_batch(n_vehicles: int, horizon=0.2, n_sub=20, barriers: bool = True, p
                 dt_pred: float = JUNCTION_RK4_STEP_S) -> float:
     """Wall time [us] of the batched kernel per vehicle per plant step (synthetic straight road,
     vehicles 20 m apart at 13.4 m/s, each following the one ahead: both barriers evaluated every
-    plant step)."""
+    plant step; no predictor model error, as in the junction scenarios)."""
     from nrtraffic.control import batch as kb
     from nrtraffic.geometry import segment_frames
 
     P = preset("paper")
-    p, pp = P.as_array(), P.with_mass_factor(2.0).as_array()
+    p = pp = P.as_array()
     path = LanePath.from_points([(0.0, 0.0), (5000.0, 0.0)])
     N = n_vehicles
     X = np.zeros((N, 6))
@@ -122,63 +126,141 @@ def bench_batch(n_vehicles: int, horizon=0.2, n_sub=20, barriers: bool = True, p
     return wall / (n_steps * n_sub * N) * 1e6
 
 
-def bench_run(scenario_path: Path, duration_s: float | None = None) -> dict:
-    """Co-simulation against SUMO alone on the same demand (the run's own route file and network,
-    every vehicle driven by SUMO)."""
+def bench_run(scenario_path: Path, duration_s: float | None = None, overrides: tuple[str, ...] = ()) -> dict:
+    """A co-simulation run, then SUMO alone on the same demand (the run's own route file and
+    network, every vehicle driven by SUMO, same steps), back to back in this process. Returns wall
+    times, real-time factors, their ratio and the run's wall-time breakdown."""
     from nrtraffic.sumo.adapter import SumoSession
     from runners.single import run_scenario
 
-    sc = scenario.load(scenario_path)
+    sc = scenario.load(scenario_path, list(overrides))
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "run"
         res = run_scenario(sc, out, duration_s=duration_s)
-        co_wall, sim = res.summary["wall_time_s"], res.summary["sim_time_s"]
+        s = res.summary
+        co_wall, sim = s["wall_time_s"], s["sim_time_s"]
         t0 = time.perf_counter()
         with SumoSession(sc.network_path, out / "sumo" / "routes.rou.xml", sc.sumo.step_length_s, sc.general.seed,
                          sc.sumo.lateral_resolution_m) as sumo:
             while sumo.time < sim - 1e-9:
                 sumo.step()
         sumo_wall = time.perf_counter() - t0
-    return {"scenario": sc.general.name, "sim_time_s": sim, "cosim_wall_s": co_wall, "sumo_wall_s": sumo_wall,
-            "cosim_rtf": sim / co_wall, "sumo_rtf": sim / sumo_wall, "slowdown": co_wall / sumo_wall}
+    return {"scenario": sc.general.name, "overrides": " ".join(overrides), "sim_time_s": sim, "cosim_wall_s": co_wall,
+            "sumo_wall_s": sumo_wall, "cosim_rtf": sim / co_wall, "sumo_rtf": sim / sumo_wall,
+            "slowdown": co_wall / sumo_wall, "breakdown": s.get("wall_time_breakdown_s", {}),
+            "vehicles": s["vehicles_admitted"], "collisions": s["collisions"] + s["collisions_geometric"]}
 
 
-def run_all() -> str:
+def memory_run(duration_s: float) -> None:
+    """Run cross4 (400 veh/h per approach) for ``duration_s`` with trajectories logged every 0.1 s
+    and print this process's peak resident memory [MiB] (called in a fresh process)."""
+    from runners.single import run_scenario
+
+    sc = scenario.load(ROOT / "sumo_scenarios" / "cross4" / "scenario.toml", ["outputs.trajectory_interval_s=0.1"])
+    with tempfile.TemporaryDirectory() as tmp:
+        res = run_scenario(sc, Path(tmp) / "run", duration_s=duration_s)
+        rows = res.summary["vehicles_admitted"]
+        size = (Path(tmp) / "run" / "trajectories.parquet").stat().st_size
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    print(json.dumps({"duration_s": duration_s, "peak_rss_mib": rss, "vehicles": rows,
+                      "trajectory_mib": size / 2**20}))
+
+
+def bench_memory(duration_s: float) -> dict:
+    """Peak memory of a whole run in a process of its own (``memory_run``)."""
+    code = f"from runners.bench import memory_run; memory_run({float(duration_s)!r})"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _breakdown_rows(r: dict) -> list[str]:
+    b = dict(r["breakdown"])
+    total = r["cosim_wall_s"]
+    parts = [(k, b[k]) for k in ("kernel", "sumo_step", "sumo_io", "admission", "leaders", "collision_check", "logging")
+             if k in b]
+    rest = total - sum(v for _, v in parts)
+    names = {"kernel": "compiled kernel (tracker, barriers, plant)", "sumo_step": "SUMO's step",
+             "sumo_io": "SUMO I/O (batched read, moveToXY, hand-over)", "admission": "admission and planning",
+             "leaders": "leader search", "collision_check": "own collision check", "logging": "trajectory logging"}
+    rows = [f"| {names[k]} | {v:.2f} s | {100 * v / total:.1f} % |" for k, v in parts]
+    if "qp" in b:
+        rows.append(f"| of which rear-end QPs (DAQP) | {b['qp']:.2f} s | {100 * b['qp'] / total:.1f} % |")
+    rows.append(f"| set-up, results and the rest | {rest:.2f} s | {100 * rest / total:.1f} % |")
+    return rows
+
+
+def run_all(quick: bool = False) -> str:
+    """Every benchmark, back to back in this process; returns the markdown table."""
     k = bench_kernels()
-    batch = {n: bench_batch(n) for n in (1, 10, 50)}
-    no_cbf = bench_batch(10, barriers=False)
-    runs = [bench_run(ROOT / "sumo_scenarios" / "paper_curved" / "scenario.toml"),
-            bench_run(ROOT / "sumo_scenarios" / "cross4" / "scenario.toml", duration_s=300.0)]
+    batch = {n: bench_batch(n) for n in (1, 20, 50)}
+    batch_euler = bench_batch(20, predictor="euler", dt_pred=0.001)
+    no_cbf = bench_batch(20, barriers=False)
+    dur = 120.0 if quick else 600.0
+    cross = ROOT / "sumo_scenarios" / "cross4" / "scenario.toml"
+    runs = [bench_run(cross, dur), bench_run(cross, dur, ("demand.rate_veh_h=600",)),
+            bench_run(cross, dur, ('controller.predictor="euler"', "controller.predictor_step_s=0.001")),
+            bench_run(ROOT / "sumo_scenarios" / "paper_curved" / "scenario.toml"),
+            bench_run(ROOT / "sumo_scenarios" / "paper_cbf" / "scenario.toml")]
+    mem = [bench_memory(d) for d in ((60.0, 120.0) if quick else (600.0, 3600.0))]
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     lines = [
         "# nrtraffic benchmarks",
         "",
-        f"Machine: {platform.machine()}, {platform.python_implementation()} {platform.python_version()}. "
-        "Times are best-of-5 and vary with load; the ratios are the figures to compare.",
+        f"`nrtraffic bench` on {platform.machine()}, {platform.python_implementation()} {platform.python_version()}, "
+        f"one process, one core. Every figure of a table was measured back to back in one run; the machines are "
+        "shared and noisy, so compare ratios (co-simulation against SUMO alone on the same demand, one kernel "
+        "against another), not absolute times.",
+        "",
+        "## Kernels",
         "",
         "| what | value |",
         "|---|---|",
-        f"| tracker step (predictor T = 0.2 s / Dt = 0.001 s with sensitivities + update), per vehicle | {k['tracker_step_us']:.1f} us |",
+        f"| tracker update, RK4 predictor (T = 0.2 s, Dt = {JUNCTION_RK4_STEP_S} s nominal: {k['rk4_steps']} steps at "
+        f"13.4 m/s) with sensitivities, per vehicle | {k['tracker_rk4_us']:.2f} us |",
+        f"| tracker update, the paper's Euler predictor (Dt = 0.001 s: 200 steps), per vehicle | "
+        f"{k['tracker_euler_us']:.2f} us |",
         f"| plant Euler step, per vehicle | {k['plant_step_us']:.3f} us |",
-        f"| tracker / plant step | {k['tracker_step_us'] / k['plant_step_us']:.0f} x |",
     ]
     for n, v in batch.items():
-        lines.append(f"| batched kernel with barriers, {n} vehicles: wall time per vehicle per simulated second | "
-                     f"{1e3 * v:.2f} ms (real-time factor per vehicle {1 / v:.0f}) |")
-    lines.append(f"| batched kernel, 10 vehicles, barriers off / on | {no_cbf / batch[10]:.2f} |")
+        lines.append(f"| batched kernel (RK4, both barriers), {n} vehicles: per vehicle per plant step | {v:.2f} us |")
+    lines += [
+        f"| batched kernel, 20 vehicles, barriers off | {no_cbf:.2f} us |",
+        f"| batched kernel, 20 vehicles, the paper's Euler predictor | {batch_euler:.2f} us |",
+        "",
+        "## Whole runs against SUMO alone",
+        "",
+        "| run | simulated | co-simulation real-time factor | SUMO alone real-time factor | co-simulation / "
+        "SUMO alone | vehicles controlled | collisions |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for r in runs:
-        lines += [
-            f"| {r['scenario']} ({r['sim_time_s']:.0f} s): co-simulation real-time factor | {r['cosim_rtf']:.1f} |",
-            f"| {r['scenario']}: SUMO alone, same demand and steps, real-time factor | {r['sumo_rtf']:.0f} |",
-            f"| {r['scenario']}: co-simulation / SUMO alone wall time | {r['slowdown']:.1f} x |",
-        ]
-    lines.append(f"| peak resident memory of the benchmark process | {rss:.0f} MiB |")
+        label = r["scenario"] + (f" `{r['overrides']}`" if r["overrides"] else "")
+        lines.append(f"| {label} | {r['sim_time_s']:.0f} s | {r['cosim_rtf']:.1f} | {r['sumo_rtf']:.0f} | "
+                     f"{r['slowdown']:.1f} x | {r['vehicles']} | {r['collisions']} |")
+    lines += [
+        "",
+        f"## Where a run's time goes (cross4, 400 veh/h per approach, {dur:.0f} s, wall "
+        f"{runs[0]['cosim_wall_s']:.1f} s)",
+        "",
+        "| part | wall time | share |",
+        "|---|---|---|",
+        *_breakdown_rows(runs[0]),
+        "",
+        "## Memory (cross4, 400 veh/h per approach, trajectories every 0.1 s, each run in a process of its own)",
+        "",
+        "| simulated | peak resident memory | vehicles | trajectories.parquet |",
+        "|---|---|---|---|",
+        *[f"| {m['duration_s']:.0f} s | {m['peak_rss_mib']:.0f} MiB | {m['vehicles']} | {m['trajectory_mib']:.1f} MiB |"
+          for m in mem],
+        "",
+        f"Peak resident memory of the benchmark process itself: {rss:.0f} MiB.",
+    ]
     return "\n".join(lines) + "\n"
 
 
 def main(args) -> int:
-    table = run_all()
+    table = run_all(quick=args.quick)
     print(table)
-    if args.write:
+    if args.write is not None:
         Path(args.write).write_text(table)
     return 0
