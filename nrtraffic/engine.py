@@ -438,7 +438,8 @@ class Engine:
             bar.close()
 
     # ------------------------------------------------------------------ batch arrays
-    _BATCH = ("X", "U", "prof", "t_enter", "s_enter", "path_id", "hint", "acc", "out", "lead_idx", "lead_ext", "gap")
+    _BATCH = ("X", "U", "prof", "t_enter", "s_enter", "path_id", "hint", "acc", "out", "lead_idx", "lead_ext", "gap",
+              "s_zone", "s_last")
 
     def _pack_paths(self) -> None:
         self.path_names = list(self.paths)
@@ -462,13 +463,17 @@ class Engine:
         self.lead_idx = np.full(n, kb.NO_LEADER, dtype=np.int64)
         self.lead_ext = np.zeros((n, 6))
         self.gap = np.full(n, np.nan)
+        self.s_zone = np.zeros((n, 2))  # merging-zone entry and exit on the vehicle's path [m]
+        self.s_last = np.zeros(n)  # arc length at the start of the step [m]
 
     def _append(self, vid: str, x0, prof, t0: float, s0: float, lat0: float, ref0, pid: int, hint: int) -> None:
         self.batch_ids.append(vid)
+        mv = self.paths[self.path_names[pid]]
         row = {
             "X": x0[None], "U": np.zeros((1, 2)), "prof": prof[None], "t_enter": [t0], "s_enter": [s0],
             "path_id": [pid], "hint": [hint], "acc": kb.new_acc(1), "out": np.full((1, kb.N_OUT), np.nan),
             "lead_idx": [kb.NO_LEADER], "lead_ext": np.zeros((1, 6)), "gap": [np.nan],
+            "s_zone": [[mv.s_merge, mv.s_exit]], "s_last": [s0],
         }
         for name in self._BATCH:
             cur = getattr(self, name)
@@ -655,15 +660,17 @@ class Engine:
         if not np.all(np.isfinite(self.X)):
             bad = [v for v, ok in zip(self.batch_ids, np.isfinite(self.X).all(axis=1)) if not ok]
             raise FloatingPointError(f"vehicle state became non-finite at t={self.t:.2f} s: {', '.join(bad)}")
-        for i, vid in enumerate(self.batch_ids):
-            rec = self.records[vid]
-            ap = self.paths[rec.movement]
-            s_prev, s_new = rec.s_last, self.out[i, kb.OUT_S]
-            if math.isnan(rec.t_merge_actual) and s_new >= ap.s_merge > s_prev:
-                rec.t_merge_actual = self.t + dt * (ap.s_merge - s_prev) / (s_new - s_prev)
-            if math.isnan(rec.t_exit) and s_new >= ap.s_exit > s_prev:
-                rec.t_exit = self.t + dt * (ap.s_exit - s_prev) / (s_new - s_prev)
-            rec.s_last = s_new
+        # merging-zone entry and exit crossed in this step: times interpolated within it
+        s_prev, s_new = self.s_last, self.out[:, kb.OUT_S]
+        crossed = (s_new[:, None] >= self.s_zone) & (self.s_zone > s_prev[:, None])
+        for i, k in zip(*np.nonzero(crossed)):
+            rec = self.records[self.batch_ids[i]]
+            t_cross = self.t + dt * (self.s_zone[i, k] - s_prev[i]) / (s_new[i] - s_prev[i])
+            if k == 0 and math.isnan(rec.t_merge_actual):
+                rec.t_merge_actual = t_cross
+            elif k == 1 and math.isnan(rec.t_exit):
+                rec.t_exit = t_cross
+        self.s_last[:] = s_new
 
     def _log(self) -> None:
         if self.traj is None or not self.batch_ids:
@@ -697,25 +704,26 @@ class Engine:
         if not self.batch_ids:
             return
         cg = self.params.cg_to_front
-        keep = np.ones(len(self.batch_ids), dtype=bool)
         live = self.snap.row
-        for i, vid in enumerate(self.batch_ids):
+        keep = np.array([vid in live for vid in self.batch_ids])
+        X = self.X
+        front_x = X[:, 0] + cg * np.cos(X[:, 4])
+        front_y = X[:, 1] + cg * np.sin(X[:, 4])
+        self.sumo.push_poses([v for v, k in zip(self.batch_ids, keep) if k], front_x[keep], front_y[keep],
+                             X[keep, 4], np.hypot(X[keep, 2], X[keep, 3]))
+        done = keep & (self.out[:, kb.OUT_S] >= self.s_zone[:, 1])
+        for i in np.flatnonzero(~keep | done):
+            vid = self.batch_ids[i]
             rec = self.records[vid]
-            if vid not in live:
-                rec.status = "lost"
-                keep[i] = False
-                continue
-            x, y, vl, vn, psi = self.X[i, :5]
-            self.sumo.push_pose(vid, x + cg * math.cos(psi), y + cg * math.sin(psi), psi, math.hypot(vl, vn))
-            if self.out[i, kb.OUT_S] >= self.paths[rec.movement].s_exit:
+            if done[i]:
                 self.sumo.release(vid)
                 rec.status = "released"
-                keep[i] = False
-        for i, vid in enumerate(self.batch_ids):
-            if not keep[i]:
-                self.records[vid].acc = self.acc[i].copy()
-        if not keep.all():
-            self._remove(keep)
+            else:
+                rec.status = "lost"
+            rec.acc = self.acc[i].copy()
+        if not keep.all() or done.any():
+            self._remove(keep & ~done)
+
 
     def _script(self, scripted: list[str], t_next: float) -> None:
         """SUMO-driven vehicles with a speed profile: the desired speed for the next step."""

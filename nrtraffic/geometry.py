@@ -174,6 +174,20 @@ def path_point(q, xy, s):
 
 
 @njit(cache=True, error_model="numpy")
+def path_point_near(q, xy, s, i):
+    """:func:`path_point` found by walking from segment ``i`` (a nearby segment, e.g. the vehicle's
+    own): the same segment as the binary search (the last ``i`` with ``s[i] <= q``, within the
+    path), in a few steps when ``q`` is close."""
+    n = s.shape[0]
+    while i < n - 2 and s[i + 1] <= q:
+        i += 1
+    while i > 0 and s[i] > q:
+        i -= 1
+    frac = (q - s[i]) / (s[i + 1] - s[i])
+    return xy[i, 0] + frac * (xy[i + 1, 0] - xy[i, 0]), xy[i, 1] + frac * (xy[i + 1, 1] - xy[i, 1])
+
+
+@njit(cache=True, error_model="numpy")
 def path_xy(s_arr, xy, s, out):
     """Compiled :meth:`LanePath.xy_at` for one packed path: positions at each ``s_arr[j]``."""
     for j in range(s_arr.shape[0]):

@@ -133,33 +133,38 @@ def test_min_and_max_time_are_the_feasibility_limits():
 B_JUNCTION = PlanBounds(v_min_mps=1.0, v_max_mps=13.89, u_min_mps2=-3.0, u_max_mps2=2.5)
 
 
-def test_rear_end_qp_reproduces_the_closed_form_when_the_leader_is_far():
+@pytest.mark.parametrize("solver", ["daqp", "osqp"])
+def test_rear_end_qp_reproduces_the_closed_form_when_the_leader_is_far(solver):
     """With the gap constraint inactive the QP's optimum is the closed form itself (u linear is
     inside its piecewise-linear family): the fixed- and free-terminal cases."""
     far = lambda t: np.full_like(np.asarray(t, float), 1e6)  # noqa: E731
     ref = fixed_terminal(0.0, 13.89, 8.0, 400.0, 40.0, B_JUNCTION)
-    qp = rear_end_constrained(0.0, 13.89, 400.0, 40.0, B_JUNCTION, far, 40.0, 12.0, vm=8.0)
+    qp = rear_end_constrained(0.0, 13.89, 400.0, 40.0, B_JUNCTION, far, 40.0, 12.0, vm=8.0, solver=solver)
     t = np.linspace(0.0, 40.0, 801)
     assert np.max(np.abs(qp.evaluate(t)[0] - ref.evaluate(t)[0])) < 1e-3
     assert qp.energy() == pytest.approx(ref.energy(), rel=1e-4)
     ref = free_terminal(0.0, 10.0, 300.0, 24.0, B_JUNCTION)
-    qp = rear_end_constrained(0.0, 10.0, 300.0, 24.0, B_JUNCTION, far, 24.0, 12.0, vm=None)
+    qp = rear_end_constrained(0.0, 10.0, 300.0, 24.0, B_JUNCTION, far, 24.0, 12.0, vm=None, solver=solver)
     assert np.max(np.abs(qp.evaluate(t[t <= 24.0])[0] - ref.evaluate(t[t <= 24.0])[0])) < 1e-3
     assert qp.v_m == pytest.approx(ref.v_m, abs=1e-4)
 
 
-def test_rear_end_qp_keeps_behind_a_slowing_leader():
+def _slowing_leader_case():
+    gap, D = 12.0, 400.0
+    lead = fixed_terminal(0.0, 13.89, 13.89, D, 54.0, B_JUNCTION)
+    return gap, D, (lambda t: lead.evaluate(t)[0]), 4.3, 55.5, 8.0  # t_m: 54 s + 12 m / 8 m/s
+
+
+@pytest.mark.parametrize("solver", ["daqp", "osqp"])
+def test_rear_end_qp_keeps_behind_a_slowing_leader(solver):
     """A leader held back by a conflict slows deeply in the middle of the zone; a follower entering
     4 s later with a lower merge speed catches up with it in its closed form. The constrained
     profile meets its end conditions and the bounds, keeps the gap (sampled far finer than its
     grid), and costs more energy than the closed form."""
-    gap, D = 12.0, 400.0
-    lead = fixed_terminal(0.0, 13.89, 13.89, D, 54.0, B_JUNCTION)
-    leader_pos = lambda t: lead.evaluate(t)[0]  # noqa: E731
-    t0, t_m, vm = 4.3, 55.5, 8.0  # the merge-time rule: 54 s + 12 m / 8 m/s
+    gap, D, leader_pos, t0, t_m, vm = _slowing_leader_case()
     closed = fixed_terminal(t0, 13.89, vm, D, t_m - t0, B_JUNCTION)
     assert rear_end_violation(closed, leader_pos, t_m, gap) > 5.0  # the case exists
-    prof = rear_end_constrained(t0, 13.89, D, t_m - t0, B_JUNCTION, leader_pos, t_m, gap, vm=vm)
+    prof = rear_end_constrained(t0, 13.89, D, t_m - t0, B_JUNCTION, leader_pos, t_m, gap, vm=vm, solver=solver)
     t = np.linspace(t0, t_m, 20001)
     p, v, u = prof.evaluate(t)
     assert np.max(p - (leader_pos(t) - gap)) < 0.05
@@ -175,8 +180,22 @@ def test_rear_end_qp_keeps_behind_a_slowing_leader():
         assert prof.coef[k, 1] == pytest.approx(v0 + u0 * d + j * d * d / 2, abs=1e-9)
 
 
-def test_rear_end_qp_reports_an_impossible_gap():
+def test_dense_and_sparse_solvers_give_the_same_rear_end_plan():
+    """DAQP (dense active set, the default) and OSQP (ADMM, tolerance 1e-6) solve the same QP: their
+    plans agree within 5 mm in position and 0.01 m/s^2 in acceleration."""
+    gap, D, leader_pos, t0, t_m, vm = _slowing_leader_case()
+    a = rear_end_constrained(t0, 13.89, D, t_m - t0, B_JUNCTION, leader_pos, t_m, gap, vm=vm, solver="daqp")
+    b = rear_end_constrained(t0, 13.89, D, t_m - t0, B_JUNCTION, leader_pos, t_m, gap, vm=vm, solver="osqp")
+    t = np.linspace(t0, t_m, 5001)
+    pa, _, ua = a.evaluate(t)
+    pb, _, ub = b.evaluate(t)
+    assert np.max(np.abs(pa - pb)) < 5e-3 and np.max(np.abs(ua - ub)) < 1e-2
+    assert a.energy() == pytest.approx(b.energy(), rel=1e-4)
+
+
+@pytest.mark.parametrize("solver", ["daqp", "osqp"])
+def test_rear_end_qp_reports_an_impossible_gap(solver):
     """A leader standing 5 m into the zone cannot be followed 12 m behind from the entry."""
     stop = lambda t: np.full_like(np.asarray(t, float), 5.0)  # noqa: E731
     with pytest.raises(InfeasibleProfile):
-        rear_end_constrained(0.0, 13.89, 400.0, 30.0, B_JUNCTION, stop, 30.0, 12.0, vm=13.89)
+        rear_end_constrained(0.0, 13.89, 400.0, 30.0, B_JUNCTION, stop, 30.0, 12.0, vm=13.89, solver=solver)

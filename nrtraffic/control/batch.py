@@ -25,10 +25,10 @@ from numba import njit, objmode
 
 from nrtraffic.control import cbf
 from nrtraffic.control.nr_flow import new_workspace, nr_update
-from nrtraffic.geometry import path_point, project_local
+from nrtraffic.geometry import path_point_near, project_local
 from nrtraffic.metrics import fuel_rate
 from nrtraffic.planning.profiles import packed_position
-from nrtraffic.vehicle.bicycle import euler_step
+from nrtraffic.vehicle.bicycle import body_rates_affine
 
 (ACC_MAX_ERR, ACC_MAX_ERR_STEADY, ACC_MAX_LAT, ACC_ENERGY, ACC_FUEL, ACC_MAX_ABS_A, ACC_MAX_ERR_TRANSIENT,
  ACC_STEPS, ACC_LONG_ACTIVE, ACC_LAT_ACTIVE, ACC_LONG_FALLBACK, ACC_LAT_FALLBACK, ACC_MIN_CENTER, ACC_MIN_H_LONG,
@@ -67,10 +67,10 @@ def _qp(a_star, G, b, lo, hi):
 
 
 @njit(cache=True, error_model="numpy")
-def _ref_xy(prof, tau, s_enter, xy, s):
+def _ref_xy(prof, tau, s_enter, xy, s, near):
     """Reference point ``(x, y)`` [m] at local time ``tau`` [s]: the profile's distance mapped onto
-    the lane path."""
-    return path_point(s_enter + packed_position(prof, tau), xy, s)
+    the lane path (searched from segment ``near``, the vehicle's own)."""
+    return path_point_near(s_enter + packed_position(prof, tau), xy, s, near)
 
 
 @njit(cache=True, error_model="numpy")
@@ -95,7 +95,6 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
     qp_mode = int(cfg[CFG_QP_MODE])
     method = int(cfg[CFG_PREDICTOR])
     ws, wsP = new_workspace()
-    work = np.empty(6)
     u_new = np.empty(2)
     u_app = np.empty(2)
     ref = np.empty(2)
@@ -104,14 +103,18 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
     zacc = np.zeros((N, 2))
     n_long = np.zeros(N)
     n_lat = np.zeros(N)
+    # cos and sin of each vehicle's heading, carried from one plant step to the next
+    cs = np.empty((N, 2))
+    for i in range(N):
+        cs[i, 0] = math.cos(X[i, 4])
+        cs[i, 1] = math.sin(X[i, 4])
     for j in range(n_sub):
         t = t_start + j * h
         for i in range(N):
-            vx, vy = cbf.world_velocity(X[i])
             snap[i, 0] = X[i, 0]
             snap[i, 1] = X[i, 1]
-            snap[i, 2] = vx
-            snap[i, 3] = vy
+            snap[i, 2] = X[i, 2] * cs[i, 0] - X[i, 3] * cs[i, 1]
+            snap[i, 3] = X[i, 2] * cs[i, 1] + X[i, 3] * cs[i, 0]
             snap[i, 4] = zacc[i, 0]
             snap[i, 5] = zacc[i, 1]
         for i in range(N):
@@ -121,6 +124,8 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
             s = path_s_all[a0:a1]
             x = X[i]
             u = U[i]
+            cp = cs[i, 0]
+            sp = cs[i, 1]
             u_app[0] = u[0]
             u_app[1] = u[1]
             pinned_a = False
@@ -129,11 +134,18 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
             tx = path_frames[fr, 0]
             ty = path_frames[fr, 1]
             curv = path_frames[fr, 2]
+            # body rates of eq. (1) at a_l = 0 and their slope in a_l, at the tracker's steering:
+            # shared by both barriers and the plant (re-evaluated if the lateral barrier steers)
+            f2, f3, f5, g3, g5 = body_rates_affine(x, u_app[1], plant_p)
             # ---- lateral barrier: bisection on the steering
             if cbf_lat:
-                d, st, hl = cbf.lat_filter(x, u_app[0], u_app[1], plant_p, out[i, OUT_LAT], tx, ty, curv,
-                                           cfg[CFG_Y_MAX], cfg[CFG_K_LAT], cfg[CFG_GAMMA], u_hi[1], cfg[CFG_BISECT_TOL])
-                u_app[1] = d
+                a = u_app[0]
+                d, st, hl = cbf.lat_filter_given(x, cp, sp, a, u_app[1], f2 + a, f3 + a * g3, plant_p,
+                                                 out[i, OUT_LAT], tx, ty, curv, cfg[CFG_Y_MAX], cfg[CFG_K_LAT],
+                                                 cfg[CFG_GAMMA], u_hi[1], cfg[CFG_BISECT_TOL])
+                if d != u_app[1]:
+                    u_app[1] = d
+                    f2, f3, f5, g3, g5 = body_rates_affine(x, d, plant_p)
                 out[i, OUT_H_LAT] = hl
                 if hl < acc[i, ACC_MIN_H_LAT]:
                     acc[i, ACC_MIN_H_LAT] = hl
@@ -161,8 +173,8 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
                     acc[i, ACC_MIN_CENTER] = dc
             # ---- longitudinal barrier: one-dimensional QP on the acceleration
             if cbf_long and has_lead:
-                hb, G, b = cbf.long_constraint(x, u_app[1], plant_p, lead, cfg[CFG_D0], cfg[CFG_A_BAR],
-                                               cfg[CFG_LONG_GAIN], cfg[CFG_ROOT_C])
+                hb, G, b = cbf.long_constraint_given(x, cp, sp, f2, f3, g3, lead, cfg[CFG_D0], cfg[CFG_A_BAR],
+                                                     cfg[CFG_LONG_GAIN], cfg[CFG_ROOT_C])
                 if qp_mode == 0:
                     a, st = cbf.long_filter_closed(u_app[0], G, b, u_lo[0], u_hi[0])
                 else:
@@ -184,7 +196,7 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
             # ---- tracker, eq. (12). Anti-windup: it integrates from the applied input, and an input
             # a barrier overrides is pinned (the flow moves the other one alone). Without: it runs on
             # its own state as if unfiltered.
-            ref[0], ref[1] = _ref_xy(prof[i], t + horizon - t_enter[i], s_enter[i], xy, s)
+            ref[0], ref[1] = _ref_xy(prof[i], t + horizon - t_enter[i], s_enter[i], xy, s, hint[i])
             if anti_windup:
                 u[0] = u_app[0]
                 u[1] = u_app[1]
@@ -193,15 +205,29 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
             else:
                 nr_update(x, u, pred_p, ref, horizon, cfg[CFG_DT_PRED], method, cfg[CFG_ALPHA], cfg[CFG_DAMPING], h,
                           u_lo, u_hi, u_new, ws, wsP, True, True)
-            # ---- plant, eq. (1), applied input held over the step
+            # ---- plant, eq. (1): one forward-Euler step with the applied input held over it
+            # (bicycle.euler_step, from the rates above; v_l is clamped at 0: no reversing)
             a = u_app[0]
             v = x[2]
             vx0 = snap[i, 2]
             vy0 = snap[i, 3]
-            euler_step(x, u_app, plant_p, h, work)
-            vx1, vy1 = cbf.world_velocity(x)
-            zacc[i, 0] = (vx1 - vx0) / h
-            zacc[i, 1] = (vy1 - vy0) / h
+            r = x[5]
+            dz1 = x[2] * cp - x[3] * sp
+            dz2 = x[2] * sp + x[3] * cp
+            x[0] += h * dz1
+            x[1] += h * dz2
+            x[2] += h * (f2 + a)
+            x[3] += h * (f3 + a * g3)
+            x[4] += h * r
+            x[5] += h * (f5 + a * g5)
+            if x[2] < 0.0:
+                x[2] = 0.0
+            cp = math.cos(x[4])
+            sp = math.sin(x[4])
+            cs[i, 0] = cp
+            cs[i, 1] = sp
+            zacc[i, 0] = (x[2] * cp - x[3] * sp - vx0) / h
+            zacc[i, 1] = (x[2] * sp + x[3] * cp - vy0) / h
             acc[i, ACC_ENERGY] += 0.5 * a * a * h
             acc[i, ACC_FUEL] += fuel_rate(v, a) * h
             acc[i, ACC_STEPS] += 1.0
@@ -211,10 +237,10 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
             u[1] = u_new[1]
             # ---- figures at t + h
             tn = t + h
-            rx, ry = _ref_xy(prof[i], tn - t_enter[i], s_enter[i], xy, s)
+            sp_, lat, hint[i] = project_local(xy, s, x[0], x[1], hint[i], 3, 12)
+            rx, ry = _ref_xy(prof[i], tn - t_enter[i], s_enter[i], xy, s, hint[i])
             err = math.sqrt((x[0] - rx) ** 2 + (x[1] - ry) ** 2)
-            sp, lat, hint[i] = project_local(xy, s, x[0], x[1], hint[i], 3, 12)
-            out[i, OUT_S] = sp
+            out[i, OUT_S] = sp_
             out[i, OUT_LAT] = lat
             out[i, OUT_REFX] = rx
             out[i, OUT_REFY] = ry

@@ -52,7 +52,7 @@ import math
 import numpy as np
 from numba import njit
 
-from nrtraffic.vehicle.bicycle import blend_weight, body_rates
+from nrtraffic.vehicle.bicycle import body_rates, body_rates_affine
 
 # filter outcomes
 INACTIVE, ACTIVE, FALLBACK = 0, 1, 2
@@ -66,11 +66,8 @@ def world_velocity(x):
 
 
 @njit(cache=True, error_model="numpy")
-def world_acceleration(x, a, delta, p):
-    """World-frame acceleration [m/s^2] of the centre of gravity under input (a, delta)."""
-    vl_dot, vn_dot, _ = body_rates(x, a, delta, p)
-    c = math.cos(x[4])
-    s = math.sin(x[4])
+def _accel_from_rates(x, c, s, vl_dot, vn_dot):
+    """World-frame acceleration [m/s^2] from the body-frame rates; ``c, s`` = cos, sin of ``x[4]``."""
     r = x[5]
     ax = c * vl_dot - s * vn_dot + r * (-x[2] * s - x[3] * c)
     ay = s * vl_dot + c * vn_dot + r * (x[2] * c - x[3] * s)
@@ -78,14 +75,10 @@ def world_acceleration(x, a, delta, p):
 
 
 @njit(cache=True, error_model="numpy")
-def accel_per_unit_a(x, delta, p):
-    """``d(world acceleration) / d a_l`` [1]: eq. (1) is affine in ``a_l`` (``v_l' = ... + a_l``;
-    in the kinematic blend also ``v_n' = ... + (1 - w) l_r tan(delta) / L a_l``)."""
-    w, _ = blend_weight(x[2], p)
-    dvn = (1.0 - w) * p[3] * math.tan(delta) / (p[2] + p[3])
-    c = math.cos(x[4])
-    s = math.sin(x[4])
-    return c - s * dvn, s + c * dvn
+def world_acceleration(x, a, delta, p):
+    """World-frame acceleration [m/s^2] of the centre of gravity under input (a, delta)."""
+    vl_dot, vn_dot, _ = body_rates(x, a, delta, p)
+    return _accel_from_rates(x, math.cos(x[4]), math.sin(x[4]), vl_dot, vn_dot)
 
 
 @njit(cache=True, error_model="numpy")
@@ -118,7 +111,17 @@ def long_constraint(x, delta, p, lead, d0, a_bar, gain, c=0.0):
     root is extended as an odd function, so a small discrete-time overshoot into the unsafe set is
     pushed back by the same condition (``dh/dt >= -kappa h > 0``) instead of ending the filter.
     """
-    vx, vy = world_velocity(x)
+    f2, f3, _, g3, _ = body_rates_affine(x, delta, p)
+    return long_constraint_given(x, math.cos(x[4]), math.sin(x[4]), f2, f3, g3, lead, d0, a_bar, gain, c)
+
+
+@njit(cache=True, error_model="numpy")
+def long_constraint_given(x, cp, sp, f2, f3, g3, lead, d0, a_bar, gain, c):
+    """:func:`long_constraint` with the heading's ``cp, sp`` (cos, sin) and the body rates at
+    ``a_l = 0`` with their slope in ``a_l`` (:func:`~nrtraffic.vehicle.bicycle.body_rates_affine`)
+    already evaluated."""
+    vx = x[2] * cp - x[3] * sp
+    vy = x[2] * sp + x[3] * cp
     dpx = lead[0] - x[0]
     dpy = lead[1] - x[1]
     dvx = lead[2] - vx
@@ -130,8 +133,9 @@ def long_constraint(x, delta, p, lead, d0, a_bar, gain, c=0.0):
     sroot, droot = _root(2.0 * a_bar * (r - d0), c)
     h = sroot + vh
     # follower acceleration, affine in a_l: acc(a) = acc0 + a * acc1
-    a0x, a0y = world_acceleration(x, 0.0, delta, p)
-    a1x, a1y = accel_per_unit_a(x, delta, p)
+    a0x, a0y = _accel_from_rates(x, cp, sp, f2, f3)
+    a1x = cp - sp * g3
+    a1y = sp + cp * g3
     # dh/dt = drift - (<dp, acc1> / r) a_l >= -gain h
     # d/dt root(2 a_bar (r - d0)) = root' * 2 a_bar * r_dot, r_dot = v_hat
     drift = 2.0 * a_bar * droot * vh + (dvx * dvx + dvy * dvy - vh * vh) / r + (dpx * (lead[4] - a0x) + dpy * (lead[5] - a0y)) / r
@@ -205,12 +209,21 @@ def lat_condition(x, a, delta, p, y, tx, ty, curv, y_max, k, gamma):
 
     ``(tx, ty)`` path tangent at the projection, ``curv`` path curvature [1/m], ``y`` deviation.
     """
+    vl_dot, vn_dot, _ = body_rates(x, a, delta, p)
+    return lat_condition_given(x, math.cos(x[4]), math.sin(x[4]), vl_dot, vn_dot, y, tx, ty, curv, y_max, k, gamma)
+
+
+@njit(cache=True, error_model="numpy")
+def lat_condition_given(x, cp, sp, vl_dot, vn_dot, y, tx, ty, curv, y_max, k, gamma):
+    """:func:`lat_condition` with the heading's ``cp, sp`` (cos, sin) and the body rates
+    ``v_l', v_n'`` under the input already evaluated."""
     nx = -ty
     ny = tx
-    vx, vy = world_velocity(x)
+    vx = x[2] * cp - x[3] * sp
+    vy = x[2] * sp + x[3] * cp
     ydot = nx * vx + ny * vy
     vt = tx * vx + ty * vy
-    ax, ay = world_acceleration(x, a, delta, p)
+    ax, ay = _accel_from_rates(x, cp, sp, vl_dot, vn_dot)
     yddot = nx * ax + ny * ay - curv * vt * vt / (1.0 - curv * y)
     sg = 1.0 if y > 0.0 else (-1.0 if y < 0.0 else (1.0 if ydot > 0.0 else (-1.0 if ydot < 0.0 else 0.0)))
     q = y + k * sg * ydot * ydot
@@ -227,11 +240,20 @@ def lat_filter(x, a, delta_star, p, y, tx, ty, curv, y_max, k, gamma, d_max, tol
     Returns ``(delta, status, h)``; status INACTIVE, ACTIVE or FALLBACK (no admissible value: the
     end with the larger condition value).
     """
-    c0, h = lat_condition(x, a, delta_star, p, y, tx, ty, curv, y_max, k, gamma)
+    vl_dot, vn_dot, _ = body_rates(x, a, delta_star, p)
+    return lat_filter_given(x, math.cos(x[4]), math.sin(x[4]), a, delta_star, vl_dot, vn_dot, p, y, tx, ty, curv,
+                            y_max, k, gamma, d_max, tol)
+
+
+@njit(cache=True, error_model="numpy")
+def lat_filter_given(x, cp, sp, a, delta_star, vl_dot, vn_dot, p, y, tx, ty, curv, y_max, k, gamma, d_max, tol):
+    """:func:`lat_filter` with the heading's ``cp, sp`` and the body rates under
+    ``(a, delta_star)`` already evaluated (other steering values are evaluated here)."""
+    c0, h = lat_condition_given(x, cp, sp, vl_dot, vn_dot, y, tx, ty, curv, y_max, k, gamma)
     if c0 >= 0.0:
         return delta_star, INACTIVE, h
-    c_lo, _ = lat_condition(x, a, -d_max, p, y, tx, ty, curv, y_max, k, gamma)
-    c_hi, _ = lat_condition(x, a, d_max, p, y, tx, ty, curv, y_max, k, gamma)
+    c_lo = _lat_at(x, cp, sp, a, -d_max, p, y, tx, ty, curv, y_max, k, gamma)
+    c_hi = _lat_at(x, cp, sp, a, d_max, p, y, tx, ty, curv, y_max, k, gamma)
     if c_lo < 0.0 and c_hi < 0.0:
         return (-d_max if c_lo > c_hi else d_max), FALLBACK, h
     # admissible end closest to delta_star
@@ -243,9 +265,14 @@ def lat_filter(x, a, delta_star, p, y, tx, ty, curv, y_max, k, gamma, d_max, tol
     good = end
     while abs(good - bad) > tol:
         mid = 0.5 * (good + bad)
-        cm, _ = lat_condition(x, a, mid, p, y, tx, ty, curv, y_max, k, gamma)
-        if cm >= 0.0:
+        if _lat_at(x, cp, sp, a, mid, p, y, tx, ty, curv, y_max, k, gamma) >= 0.0:
             good = mid
         else:
             bad = mid
     return good, ACTIVE, h
+
+
+@njit(cache=True, error_model="numpy")
+def _lat_at(x, cp, sp, a, delta, p, y, tx, ty, curv, y_max, k, gamma):
+    vl_dot, vn_dot, _ = body_rates(x, a, delta, p)
+    return lat_condition_given(x, cp, sp, vl_dot, vn_dot, y, tx, ty, curv, y_max, k, gamma)[0]

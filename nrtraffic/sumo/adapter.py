@@ -309,13 +309,22 @@ class SumoSession:
     def push_pose(self, vid: str, x_front: float, y_front: float, psi: float, speed: float) -> None:
         """Place a remote-controlled vehicle (:meth:`take_over`): front bumper at (x, y) [m],
         heading psi [rad], true speed [m/s]."""
+        self.push_poses([vid], [x_front], [y_front], [psi], [speed])
+
+    def push_poses(self, ids, x_front, y_front, psi, speed) -> None:
+        """:meth:`push_pose` for many vehicles (arrays in the order of ``ids``)."""
         v = self.traci.vehicle
-        try:
-            v.setSpeed(vid, max(speed, 0.0))
-            self._pending_moves = True
-            v.moveToXY(vid, "", 0, x_front, y_front, nav_angle(psi), 1)
-        except Exception as exc:
-            raise SumoError(f"moveToXY of {vid} failed at t={self.time:.2f} s: {exc}") from None
+        set_speed, move = v.setSpeed, v.moveToXY
+        nav = (90.0 - np.degrees(np.asarray(psi, dtype=float))) % 360.0  # nav_angle
+        spd = np.maximum(np.asarray(speed, dtype=float), 0.0)
+        self._pending_moves = True
+        for vid, x, y, a, sp in zip(ids, np.asarray(x_front, float).tolist(), np.asarray(y_front, float).tolist(),
+                                    nav.tolist(), spd.tolist()):
+            try:
+                set_speed(vid, sp)
+                move(vid, "", 0, x, y, a, 1)
+            except Exception as exc:
+                raise SumoError(f"moveToXY of {vid} failed at t={self.time:.2f} s: {exc}") from None
 
     def release(self, vid: str) -> None:
         """Hand a vehicle back to SUMO's own driving."""

@@ -70,6 +70,18 @@ def body_rates(x, a, d, p):
 
 
 @njit(cache=True, error_model="numpy")
+def body_rates_affine(x, d, p):
+    """:func:`body_rates` split by its affine dependence on ``a``: returns
+    ``(vl_dot0, vn_dot0, r_dot0, dvn_da, dr_da)`` with the rates under ``(a, d)`` equal to
+    ``(vl_dot0 + a, vn_dot0 + a dvn_da, r_dot0 + a dr_da)`` (``a`` enters ``v_l'`` directly and,
+    in the kinematic blend, the yaw rate and lateral velocity through ``v_l'``)."""
+    vl_dot0, vn_dot0, r_dot0 = body_rates(x, 0.0, d, p)
+    w, _ = blend_weight(x[2], p)
+    k = (1.0 - w) * math.tan(d) / (p[_LF] + p[_LR])
+    return vl_dot0, vn_dot0, r_dot0, p[_LR] * k, k
+
+
+@njit(cache=True, error_model="numpy")
 def dynamics(x, u, p, out):
     """Write f(x, u) of eq. (1) (with the low-speed blend) into ``out`` (length 6)."""
     vl = x[2]

@@ -1,0 +1,42 @@
+"""Keeps numba's on-disk cache of the compiled kernels consistent with the sources.
+
+numba keys a cached function by its own file only: after an edit to a module that a kernel calls
+(``vehicle/bicycle.py`` under ``control/batch.py``, say), the stale machine code of the caller would
+still be loaded. Here a digest of every source file of the package is kept beside the caches; when
+it differs, every cache file of the package is removed before anything is compiled or loaded, so
+the next call recompiles. Runs once, when the package is imported.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+_ROOT = Path(__file__).resolve().parent
+_STAMP = _ROOT / "__pycache__" / "kernel_sources.sha256"
+
+
+def _digest() -> str:
+    h = hashlib.sha256()
+    for path in sorted(_ROOT.rglob("*.py")):
+        h.update(str(path.relative_to(_ROOT)).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()
+
+
+def ensure_fresh() -> None:
+    """Remove numba cache files (``*.nbi``, ``*.nbc``) of the package if any source changed since
+    they were written. Best effort: a read-only installation is left as it is."""
+    try:
+        digest = _digest()
+        if _STAMP.is_file() and _STAMP.read_text() == digest:
+            return
+        for pattern in ("*.nbi", "*.nbc"):
+            for f in _ROOT.rglob(pattern):
+                f.unlink(missing_ok=True)
+        _STAMP.parent.mkdir(exist_ok=True)
+        tmp = _STAMP.with_suffix(f".{id(digest)}.tmp")
+        tmp.write_text(digest)
+        tmp.replace(_STAMP)
+    except OSError:
+        pass
