@@ -77,7 +77,7 @@ def bench_kernels(horizon=0.2) -> dict:
 
 def bench_batch(n_vehicles: int, horizon=0.2, n_sub=20, barriers: bool = True, predictor: str = "rk4",
                 dt_pred: float = JUNCTION_RK4_STEP_S) -> float:
-    """Wall time [us] of the batched kernel per vehicle per plant step (synthetic straight road,
+    """Wall time [us] of the batched kernel per vehicle per plant step, best of 5 (synthetic straight road,
     vehicles 20 m apart at 13.4 m/s, each following the one ahead: both barriers evaluated every
     plant step; no predictor model error, as in the junction scenarios)."""
     from nrtraffic.control import batch as kb
@@ -119,11 +119,13 @@ def bench_batch(n_vehicles: int, horizon=0.2, n_sub=20, barriers: bool = True, p
 
     step(0.0)
     n_steps = 20
-    t0 = time.perf_counter()
-    for k in range(n_steps):
-        step(0.1 * (k + 1))
-    wall = time.perf_counter() - t0
-    return wall / (n_steps * n_sub * N) * 1e6
+    best = np.inf
+    for rep in range(5):  # best of 5: the machines are shared
+        t0 = time.perf_counter()
+        for k in range(n_steps):
+            step(0.1 * (rep * n_steps + k + 1))
+        best = min(best, time.perf_counter() - t0)
+    return best / (n_steps * n_sub * N) * 1e6
 
 
 def bench_run(scenario_path: Path, duration_s: float | None = None, overrides: tuple[str, ...] = ()) -> dict:
@@ -161,9 +163,21 @@ def memory_run(duration_s: float) -> None:
         res = run_scenario(sc, Path(tmp) / "run", duration_s=duration_s)
         rows = res.summary["vehicles_admitted"]
         size = (Path(tmp) / "run" / "trajectories.parquet").stat().st_size
-    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    print(json.dumps({"duration_s": duration_s, "peak_rss_mib": rss, "vehicles": rows,
+    print(json.dumps({"duration_s": duration_s, "peak_rss_mib": peak_rss_mib(), "vehicles": rows,
                       "trajectory_mib": size / 2**20}))
+
+
+def peak_rss_mib() -> float:
+    """Peak resident memory of this process [MiB]: ``VmHWM`` of /proc/self/status where there is one
+    (``ru_maxrss`` survives ``exec`` on Linux, so a child would report its parent's peak), else
+    ``ru_maxrss``."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return float(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def bench_memory(duration_s: float) -> dict:
@@ -202,7 +216,7 @@ def run_all(quick: bool = False) -> str:
             bench_run(ROOT / "sumo_scenarios" / "paper_curved" / "scenario.toml"),
             bench_run(ROOT / "sumo_scenarios" / "paper_cbf" / "scenario.toml")]
     mem = [bench_memory(d) for d in ((60.0, 120.0) if quick else (600.0, 3600.0))]
-    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    rss = peak_rss_mib()
     lines = [
         "# nrtraffic benchmarks",
         "",
