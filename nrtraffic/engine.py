@@ -41,6 +41,7 @@ LEADER_LOOKAHEAD_M = 200.0  # how far along its path a vehicle looks for its lea
 # reads its results), SUMO's step (with its collision list), reading and writing SUMO's vehicles,
 # admission (coordinator; its rear-end QPs also as ``qp``), leader search, the own collision check,
 # and trajectory logging
+CHECKPOINT_WALL_S = 10.0  # wall time between checkpoints of the figures (``checkpoint``) [s]
 WALL_PHASES = ("kernel", "sumo_step", "sumo_io", "admission", "qp", "leaders", "collision_check", "logging")
 
 
@@ -140,15 +141,20 @@ class Engine:
         crossings and figures are measured the same way.
     network : a network to use instead of the scenario's (the baselines' junction control).
     label : what drove the vehicles, for the summary ("nrtraffic" or the baseline's name).
+    checkpoint : called with the figures so far (a :class:`RunResult` whose summary says
+        ``"status": "running"``) about every ``CHECKPOINT_WALL_S`` seconds of wall time, so that a
+        run killed outright leaves its last checkpoint on disk. Wall-clock timing only decides
+        when files are written, never what is simulated.
     """
 
     def __init__(self, scenario: Scenario, workdir: Path, seed: int | None = None, duration_s: float | None = None,
                  trajectories: TrajectoryWriter | None = None, progress: bool = False, control: bool = True,
-                 network: Path | None = None, label: str = "nrtraffic"):
+                 network: Path | None = None, label: str = "nrtraffic", checkpoint=None):
         self.sc = scenario
         self.control = control
         self.network_path = Path(network) if network is not None else scenario.network_path
         self.label = label
+        self.checkpoint = checkpoint
         self.seed = scenario.general.seed if seed is None else int(seed)
         self.duration = scenario.general.duration_s if duration_s is None else float(duration_s)
         self.workdir = Path(workdir)
@@ -309,7 +315,7 @@ class Engine:
         sdir.mkdir(exist_ok=True)
         p = self.params
         vtype = VehicleType(length_m=p.length, width_m=p.width, max_speed_mps=max(self.sc.planning.v_max_mps, 1.0))
-        wall0 = time.perf_counter()
+        wall0 = self.wall0 = time.perf_counter()
         error = None
         try:
             self._movement_table()
@@ -343,7 +349,10 @@ class Engine:
             error = exc
         wall = time.perf_counter() - wall0
         if self.traj is not None:
-            self.traj.close()
+            try:
+                self.traj.close()
+            except OSError as exc:  # a full disk, say: the figures below are still returned
+                error = error or exc
         result = self._result(wall, error)
         if error is not None:
             raise RunFailed(f"run stopped at t={self.t:.2f} s: {type(error).__name__}: {error}", result) from error
@@ -369,6 +378,7 @@ class Engine:
                    bar_format=fmt)
         clock = time.perf_counter
         wall = self.wall_breakdown
+        next_checkpoint = clock() + CHECKPOINT_WALL_S
         try:
             while True:
                 self.t = self.sumo.time
@@ -433,6 +443,11 @@ class Engine:
                 wall["sumo_step"] += t8 - t7
                 step += 1
                 bar.update(dt)
+                if self.checkpoint is not None and t8 >= next_checkpoint:
+                    if self.traj is not None:
+                        self.traj.flush()
+                    self.checkpoint(self._result(t8 - self.wall0, None, final=False))
+                    next_checkpoint = clock() + CHECKPOINT_WALL_S
             self.t = self.sumo.time
         finally:
             bar.close()
@@ -738,10 +753,11 @@ class Engine:
             self.sumo.hold_speed(vid, float(np.interp(t_next, prof[:, 0], prof[:, 1])))
 
     # ------------------------------------------------------------------ results
-    def _sumo_time_loss(self) -> dict[str, float]:
-        """SUMO's own timeLoss per finished trip (tripinfo.xml) [s]."""
+    def _sumo_time_loss(self, final: bool = True) -> dict[str, float]:
+        """SUMO's own timeLoss per finished trip (tripinfo.xml) [s]; nothing while SUMO still
+        writes it (``final`` false)."""
         path = self.workdir / "tripinfo.xml"
-        if not self.sc.outputs.sumo_tripinfo or not path.is_file():
+        if not final or not self.sc.outputs.sumo_tripinfo or not path.is_file():
             return {}
         import xml.etree.ElementTree as ET
 
@@ -750,12 +766,14 @@ class Engine:
         except ET.ParseError:  # a run that stopped early may leave it unterminated
             return {}
 
-    def _result(self, wall: float, error: BaseException | None) -> RunResult:
+    def _result(self, wall: float, error: BaseException | None, final: bool = True) -> RunResult:
+        """The figures so far; ``final`` false for a checkpoint of a run still going (status
+        "running", no SUMO timeLoss yet)."""
         for i, vid in enumerate(getattr(self, "batch_ids", [])):
             self.records[vid].acc = self.acc[i].copy()
         rows = []
         paths = getattr(self, "paths", {})
-        time_loss = self._sumo_time_loss()
+        time_loss = self._sumo_time_loss(final)
         for rec in self.records.values():
             if rec.status == "waiting" or (self.control and not rec.controlled):
                 continue
@@ -803,7 +821,7 @@ class Engine:
             "scenario": self.sc.general.name,
             "control": self.label,
             "seed": self.seed,
-            "status": "ok" if error is None else "failed",
+            "status": ("ok" if error is None else "failed") if final else "running",
             "error": None if error is None else f"{type(error).__name__}: {error}",
             "sim_time_s": sim_t,
             "wall_time_s": wall,

@@ -45,17 +45,30 @@ class RunResult:
     extra: dict = field(default_factory=dict)
 
 
-class TrajectoryWriter:
-    """Streams trajectory rows to Parquet in row groups (never the whole run in memory)."""
+PARTIAL_TRAJECTORIES = "trajectories.partial.arrows"  # the stream a run writes until it closes
 
-    def __init__(self, path: Path, flush_rows: int = 50_000):
+
+class TrajectoryWriter:
+    """Streams trajectory rows to disk in bounded batches, so that neither memory nor a crash
+    depends on the length of the run.
+
+    While the run goes, every ``flush_rows`` rows become one record batch of an Arrow IPC stream
+    (``trajectories.partial.arrows`` beside ``path``, zstd-compressed), flushed to the operating
+    system: a run killed outright (SIGKILL, power) leaves a stream that :func:`read_trajectories`
+    reads up to its last whole batch. :meth:`close` turns the stream into ``path`` (Parquet, one row
+    group per batch, written under a temporary name and renamed) and removes it.
+    """
+
+    def __init__(self, path: Path, flush_rows: int = 5_000):
         import pyarrow as pa
 
         self.path = Path(path)
+        self.partial = self.path.with_name(PARTIAL_TRAJECTORIES)
         self.flush_rows = flush_rows
         self._cols: dict[str, list] = {k: [] for k in TRAJECTORY_COLUMNS}
         self._n = 0
-        self._writer = None
+        self._sink = None
+        self._stream = None
         self._schema = pa.schema(
             [(k, pa.string() if v == "string" else pa.float64()) for k, v in TRAJECTORY_COLUMNS.items()]
         )
@@ -75,28 +88,57 @@ class TrajectoryWriter:
             self.flush()
 
     def flush(self) -> None:
+        """Write the buffered rows as one batch of the stream and hand it to the operating system."""
         import pyarrow as pa
-        import pyarrow.parquet as pq
 
         if self._n == 0:
             return
-        table = pa.Table.from_pydict(self._cols, schema=self._schema)
-        if self._writer is None:
-            self._writer = pq.ParquetWriter(self.path, self._schema, compression="zstd")
-        self._writer.write_table(table)
+        batch = pa.RecordBatch.from_pydict(self._cols, schema=self._schema)
+        if self._stream is None:
+            self._sink = pa.OSFile(str(self.partial), "wb")
+            self._stream = pa.ipc.new_stream(self._sink, self._schema,
+                                             options=pa.ipc.IpcWriteOptions(compression="zstd"))
+        self._stream.write_batch(batch)
+        self._sink.flush()
         self.rows_written += self._n
         self._cols = {k: [] for k in TRAJECTORY_COLUMNS}
         self._n = 0
 
     def close(self) -> None:
-        self.flush()
-        if self._writer is None:  # no rows: still write a valid, empty file
-            import pyarrow.parquet as pq
+        """Flush, and write ``path`` from the stream (an empty file when nothing was logged)."""
+        import pyarrow.parquet as pq
 
-            pq.write_table(self._schema.empty_table(), self.path)
+        self.flush()
+        tmp = self.path.with_name(self.path.name + ".tmp")
+        if self._stream is None:
+            pq.write_table(self._schema.empty_table(), tmp)
         else:
-            self._writer.close()
-            self._writer = None
+            self._stream.close()
+            self._sink.close()
+            self._stream = self._sink = None
+            with pq.ParquetWriter(tmp, self._schema, compression="zstd") as out:
+                for batch in _stream_batches(self.partial):
+                    out.write_batch(batch)
+        tmp.replace(self.path)
+        self.partial.unlink(missing_ok=True)
+
+
+def _stream_batches(path: Path):
+    """The whole record batches of an Arrow IPC stream, stopping quietly at a truncated tail."""
+    import pyarrow as pa
+
+    with pa.OSFile(str(path), "rb") as f:
+        try:
+            reader = pa.ipc.open_stream(f)
+        except (pa.ArrowInvalid, OSError):
+            return
+        while True:
+            try:
+                yield reader.read_next_batch()
+            except StopIteration:
+                return
+            except (pa.ArrowInvalid, OSError):  # cut off mid-batch by a kill
+                return
 
 
 def _json_default(o):
@@ -126,11 +168,23 @@ def write_summary(path: Path, summary: dict) -> None:
 
 
 def write_vehicles(path: Path, vehicles: pd.DataFrame) -> None:
-    vehicles.to_csv(path, index=False, float_format="%.6g")
+    tmp = Path(path).with_suffix(".csv.tmp")
+    vehicles.to_csv(tmp, index=False, float_format="%.6g")
+    tmp.replace(path)
 
 
 def read_trajectories(run_dir: Path) -> pd.DataFrame:
-    return read_parquet_file(Path(run_dir) / "trajectories.parquet")
+    """A run's trajectories: ``trajectories.parquet``, or, for a run that was killed before it
+    could write it, the rows of ``trajectories.partial.arrows`` up to its last whole batch."""
+    run_dir = Path(run_dir)
+    path = run_dir / "trajectories.parquet"
+    if path.is_file() or not (run_dir / PARTIAL_TRAJECTORIES).is_file():
+        return read_parquet_file(path)
+    import pyarrow as pa
+
+    batches = list(_stream_batches(run_dir / PARTIAL_TRAJECTORIES))
+    schema = pa.schema([(k, pa.string() if v == "string" else pa.float64()) for k, v in TRAJECTORY_COLUMNS.items()])
+    return pa.Table.from_batches(batches, schema=schema).to_pandas()
 
 
 def read_parquet_file(path: Path) -> pd.DataFrame:

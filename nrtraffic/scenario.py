@@ -26,6 +26,10 @@ class ScenarioError(ValueError):
     """A scenario file is malformed, names an unknown key, or has an invalid value."""
 
 
+MAX_DURATION_S = 7 * 24 * 3600.0  # longest simulated time accepted [s] (a week)
+MAX_SEED = 2**31 - 1  # SUMO's --seed is a signed 32-bit integer
+
+
 @dataclass(frozen=True)
 class General:
     """``[scenario]``: name, network and run length."""
@@ -39,8 +43,11 @@ class General:
     def validate(self) -> None:
         if not self.network:
             raise ScenarioError("scenario.network is required (path of the SUMO .net.xml)")
-        if self.duration_s < 0:
-            raise ScenarioError("scenario.duration_s must be >= 0")
+        if not (0.0 <= self.duration_s <= MAX_DURATION_S):
+            raise ScenarioError(f"scenario.duration_s must be between 0 and {MAX_DURATION_S:.0f} s "
+                                f"(got {self.duration_s!r})")
+        if not (0 <= self.seed <= MAX_SEED):
+            raise ScenarioError(f"scenario.seed must be between 0 and {MAX_SEED} (got {self.seed!r})")
 
 
 @dataclass(frozen=True)
@@ -429,8 +436,10 @@ def parse_override(text: str) -> tuple[str, str, Any]:
     return section, key, value
 
 
-def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...] = ()) -> Scenario:
-    """Validate a parsed scenario table (plus ``section.key=value`` overrides)."""
+def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...] = (),
+              allow_outside: bool = False) -> Scenario:
+    """Validate a parsed scenario table (plus ``section.key=value`` overrides). The network must lie
+    in ``base_dir`` or below, unless ``allow_outside``."""
     data = {k: (dict(v) if isinstance(v, dict) else v) for k, v in data.items()}
     for ov in overrides:
         section, key, value = parse_override(ov)
@@ -461,6 +470,9 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
     if len(set(ids)) != len(ids):
         raise ScenarioError(f"[[vehicles]] ids must be unique, got {ids}")
     sc = Scenario(approaches=approaches, vehicles=vehicles, base_dir=Path(base_dir).resolve(), **parts)
+    if not allow_outside and not sc.network_path.is_relative_to(sc.base_dir):
+        raise ScenarioError(f"scenario.network = {sc.general.network!r} lies outside the scenario's folder "
+                            f"{sc.base_dir} (allowed only with --allow-outside)")
     if not sc.network_path.is_file():
         raise ScenarioError(f"network file not found: {sc.network_path} (scenario.network = {sc.general.network!r})")
     if sc.controller.plant_step_s > sc.sumo.step_length_s:
@@ -471,8 +483,9 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
     return sc
 
 
-def load(path: str | Path, overrides: list[str] | tuple[str, ...] = ()) -> Scenario:
-    """Read and validate a scenario file.
+def load(path: str | Path, overrides: list[str] | tuple[str, ...] = (), allow_outside: bool = False) -> Scenario:
+    """Read and validate a scenario file. Files it names (the network) must lie in its folder or
+    below, unless ``allow_outside``.
 
     Raises
     ------
@@ -484,11 +497,15 @@ def load(path: str | Path, overrides: list[str] | tuple[str, ...] = ()) -> Scena
     if not path.is_file():
         raise ScenarioError(f"scenario file not found: {path}")
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(path.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(f"{path}: not a UTF-8 text file (byte {exc.start}): a scenario is TOML text") from None
+    except OSError as exc:
+        raise ScenarioError(f"{path}: cannot be read: {exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
     try:
-        return from_dict(data, path.parent, overrides)
+        return from_dict(data, path.parent, overrides, allow_outside=allow_outside)
     except ScenarioError as exc:
         raise ScenarioError(f"{path}: {exc}") from None
 

@@ -4,18 +4,57 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
+import threading
 from pathlib import Path
+
+from nrtraffic.scenario import MAX_DURATION_S, MAX_SEED
+
+
+def _duration(text: str) -> float:
+    """``--duration``: simulated seconds, finite, 0 (until every vehicle has left) to a week."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not (0.0 <= v <= MAX_DURATION_S):  # also refuses nan and inf
+        raise argparse.ArgumentTypeError(f"{text!r}: the simulated time must be between 0 and {MAX_DURATION_S:.0f} s")
+    return v
+
+
+def _seed(text: str) -> int:
+    """``--seed``: a whole number from 0 to 2^31 - 1."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if not (0 <= v <= MAX_SEED):
+        raise argparse.ArgumentTypeError(f"{text!r}: a seed must be between 0 and {MAX_SEED}")
+    return v
+
+
+def _tolerance(text: str) -> float:
+    """``--rtol`` / ``--atol``: finite and >= 0."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (0.0 <= v < float("inf")):
+        raise argparse.ArgumentTypeError(f"{text!r}: a tolerance must be finite and >= 0")
+    return v
 
 
 def _add_run(sub) -> None:
     p = sub.add_parser("run", help="run one scenario", description="Run one scenario and write its run directory.")
     p.add_argument("scenario", type=Path, help="scenario.toml (or the folder holding it)")
-    p.add_argument("--seed", type=int, default=None, help="random seed of arrivals and SUMO (default: the scenario's)")
-    p.add_argument("--duration", type=float, default=None, metavar="S",
+    p.add_argument("--seed", type=_seed, default=None, help="random seed of arrivals and SUMO (default: the scenario's)")
+    p.add_argument("--duration", type=_duration, default=None, metavar="S",
                    help="simulated time [s] (default: the scenario's; 0 runs until every vehicle has left)")
     p.add_argument("--out", type=Path, default=None, metavar="DIR",
                    help="run directory (default: runs/<scenario>-seed<N>)")
+    p.add_argument("--allow-outside", action="store_true",
+                   help="let the scenario name files outside its own folder (refused by default)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="override a scenario setting (repeatable), e.g. --set controller.horizon_s=0.3")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -28,7 +67,7 @@ def _add_paper(sub) -> None:
                    help="curved: section 4.1, tracking on a curved road; cbf: section 4.2, barrier functions; "
                         "all: both (into DIR/curved and DIR/cbf)")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
-    p.add_argument("--seed", type=int, default=None, help="random seed (default: the scenario's)")
+    p.add_argument("--seed", type=_seed, default=None, help="random seed (default: the scenario's)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -40,9 +79,11 @@ def _add_baseline(sub) -> None:
                                    "under its own junction control, into a run directory of the same form.")
     p.add_argument("scenario", type=Path, help="scenario.toml with a [junction] (or its folder)")
     p.add_argument("--junction", required=True, choices=JUNCTION_TYPES, help="SUMO's junction control")
-    p.add_argument("--seed", type=int, default=None, help="random seed (default: the scenario's)")
-    p.add_argument("--duration", type=float, default=None, metavar="S", help="simulated time [s]")
+    p.add_argument("--seed", type=_seed, default=None, help="random seed (default: the scenario's)")
+    p.add_argument("--duration", type=_duration, default=None, metavar="S", help="simulated time [s]")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="run directory")
+    p.add_argument("--allow-outside", action="store_true",
+                   help="let the scenario name files outside its own folder (refused by default)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="override a scenario setting (repeatable)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -67,8 +108,10 @@ def _add_sweep(sub) -> None:
                         "e.g. --grid demand.rate_veh_h=200,400,600")
     p.add_argument("--baseline", default=None, metavar="CONTROL[,CONTROL...]",
                    help=f"also run SUMO's junction control on the same seeds: {', '.join(JUNCTION_TYPES)}")
-    p.add_argument("--duration", type=float, default=None, metavar="S", help="simulated time per run [s] "
+    p.add_argument("--duration", type=_duration, default=None, metavar="S", help="simulated time per run [s] "
                    "(default: the scenario's)")
+    p.add_argument("--allow-outside", action="store_true",
+                   help="let the scenario name files outside its own folder (refused by default)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="override a scenario setting in every run (repeatable)")
     where = p.add_mutually_exclusive_group()
@@ -76,6 +119,9 @@ def _add_sweep(sub) -> None:
     where.add_argument("--scheduler", default=None, metavar="ADDRESS",
                        help="use an existing Dask scheduler, e.g. tcp://10.0.0.5:8786 (workers must see DIR)")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
+    p.add_argument("--force", action="store_true",
+                   help="run again, and replace, run directories in --out that were made with another "
+                        "configuration (without it such a resume is refused)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -89,8 +135,8 @@ def _add_replay(sub) -> None:
                     "|replayed - recorded| <= atol + rtol |recorded| (wall-clock figures excepted). Exit status 0 "
                     "when they match, 1 with the differences (which figure, which vehicle, by how much) when not.")
     p.add_argument("run_dir", type=Path, help="a run directory written by run, baseline or sweep")
-    p.add_argument("--rtol", type=float, default=RTOL, help=f"relative tolerance (default {RTOL:g})")
-    p.add_argument("--atol", type=float, default=ATOL, help=f"absolute tolerance, in each figure's unit "
+    p.add_argument("--rtol", type=_tolerance, default=RTOL, help=f"relative tolerance (default {RTOL:g})")
+    p.add_argument("--atol", type=_tolerance, default=ATOL, help=f"absolute tolerance, in each figure's unit "
                    f"(default {ATOL:g})")
     p.add_argument("--out", type=Path, default=None, metavar="DIR",
                    help="keep the replay in DIR (default: a temporary folder, removed)")
@@ -108,7 +154,37 @@ def _add_bench(sub) -> None:
                    help="short runs (120 s instead of 600 s; memory at 60 and 120 s): a smoke test, not the figures")
 
 
+class OutputError(ValueError):
+    """The output folder cannot be used."""
+
+
+def writable_dir(path: Path) -> None:
+    """Refuse (exit 2) an output folder that is a file or cannot be created or written, before
+    anything runs."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise OutputError(f"--out {path}: exists and is not a folder")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        probe = path / f".write-test-{threading.get_ident()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise OutputError(f"--out {path}: cannot write there: {exc.strerror or exc}") from None
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, handled like Ctrl-C: the run stops, and what it finished is written."""
+
+
+def _on_sigterm(signum, frame) -> None:
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # one is enough: let the clean-up finish
+    raise Terminated("terminated by SIGTERM")
+
+
 def main(argv: list[str] | None = None) -> int:
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _on_sigterm)
     parser = argparse.ArgumentParser(
         prog="nrtraffic",
         description="Co-simulation of signal-free intersections: SUMO + energy-optimal planning + "
@@ -139,7 +215,8 @@ def main(argv: list[str] | None = None) -> int:
             from nrtraffic import scenario
             from runners.baseline import run_baseline
 
-            sc = scenario.load(args.scenario, args.overrides)
+            sc = scenario.load(args.scenario, args.overrides, allow_outside=args.allow_outside)
+            writable_dir(args.out)
             res = run_baseline(sc, args.junction, args.out, seed=args.seed, duration_s=args.duration,
                                progress=not args.no_progress)
             _print_summary(res.summary, args.out)
@@ -159,13 +236,16 @@ def main(argv: list[str] | None = None) -> int:
     except (ScenarioError, NetworkError) as exc:
         print(f"nrtraffic: scenario error: {exc}", file=sys.stderr)
         return 2
-    except (SweepError, ReplayError) as exc:
+    except (SweepError, ReplayError, OutputError) as exc:
         print(f"nrtraffic: {exc}", file=sys.stderr)
         return 2
     except RunFailed as exc:
         print(f"nrtraffic: {exc}", file=sys.stderr)
         if exc.result.run_dir is not None:
             print(f"nrtraffic: what was finished is in {exc.result.run_dir}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt as exc:  # outside a run (a run turns it into RunFailed)
+        print(f"nrtraffic: stopped: {exc or 'interrupted'}", file=sys.stderr)
         return 1
     return 0
 
@@ -174,9 +254,10 @@ def _cmd_run(args) -> int:
     from nrtraffic import scenario
     from runners.single import run_scenario
 
-    sc = scenario.load(args.scenario, args.overrides)
+    sc = scenario.load(args.scenario, args.overrides, allow_outside=args.allow_outside)
     seed = sc.general.seed if args.seed is None else args.seed
     out = args.out or Path("runs") / f"{sc.general.name}-seed{seed}"
+    writable_dir(out)
     res = run_scenario(sc, out, seed=seed, duration_s=args.duration, progress=not args.no_progress)
     _print_summary(res.summary, out)
     return 0

@@ -135,6 +135,31 @@ def compare_runs(recorded: Path, replayed: Path, rtol: float = RTOL, atol: float
     return diffs
 
 
+def _read_recorded(run_dir: Path) -> dict:
+    """The recorded summary, after checking that the run's files can be read at all (a truncated
+    or foreign file is a ReplayError naming it, not a difference)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    try:
+        summary = json.loads((run_dir / "summary.json").read_text())
+        if not isinstance(summary, dict):
+            raise ValueError("not a JSON object")
+    except (OSError, ValueError) as exc:
+        raise ReplayError(f"{run_dir / 'summary.json'} cannot be read: {exc}") from None
+    try:
+        pd.read_csv(run_dir / "vehicles.csv", nrows=1)
+    except (OSError, ValueError) as exc:
+        raise ReplayError(f"{run_dir / 'vehicles.csv'} cannot be read: {exc}") from None
+    traj = run_dir / "trajectories.parquet"
+    if traj.is_file():
+        try:
+            pq.ParquetFile(traj).metadata
+        except (OSError, pa.ArrowException) as exc:
+            raise ReplayError(f"{traj} cannot be read: {exc}") from None
+    return summary
+
+
 def replay(run_dir: Path, out: Path | None = None, rtol: float = RTOL, atol: float = ATOL,
            progress: bool = False) -> tuple[list[Difference], Path | None]:
     """Re-run ``run_dir`` from its recorded configuration (into ``out``, or a temporary folder that
@@ -149,7 +174,7 @@ def replay(run_dir: Path, out: Path | None = None, rtol: float = RTOL, atol: flo
     for f in ("scenario.resolved.toml", "summary.json", "vehicles.csv"):
         if not (run_dir / f).is_file():
             raise ReplayError(f"{run_dir} is not a complete run directory: {f} is missing")
-    recorded = json.loads((run_dir / "summary.json").read_text())
+    recorded = _read_recorded(run_dir)
     sc = scenario.load(run_dir / "scenario.resolved.toml")
     tmp = None
     if out is None:

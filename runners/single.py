@@ -41,18 +41,30 @@ def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: 
     resolved = dataclasses.replace(sc, general=general)
     scenario_mod.dump(resolved, out / "scenario.resolved.toml", network=f"sumo/{sc.network_path.name}")
     writer = TrajectoryWriter(out / "trajectories.parquet")
-    engine = Engine(resolved, out, trajectories=writer, progress=progress, **engine_options)
+
+    def checkpoint(result: RunResult) -> None:
+        result.summary.update(extra_summary or {})
+        _write(result, out)
+
+    engine = Engine(resolved, out, trajectories=writer, progress=progress, checkpoint=checkpoint, **engine_options)
     try:
         result = engine.run()
     except RunFailed as exc:
         exc.result.summary.update(extra_summary or {})
-        _write(exc.result, out)
+        try:
+            _write(exc.result, out)
+        except OSError as werr:
+            raise RunFailed(f"{exc}; and the figures could not be written into {out}: {werr}", exc.result) from exc
         raise
     result.summary.update(extra_summary or {})
-    _write(result, out)
+    try:
+        _write(result, out)
+    except OSError as exc:
+        raise RunFailed(f"the run finished, but its figures could not be written into {out}: {exc}", result) from exc
     return result
 
 
 def _write(result: RunResult, out: Path) -> None:
+    """vehicles.csv, then summary.json (each under a temporary name, renamed when whole)."""
     write_vehicles(out / "vehicles.csv", result.vehicles)
     write_summary(out / "summary.json", result.summary)

@@ -21,6 +21,7 @@ system) and have nrtraffic installed.
 
 from __future__ import annotations
 
+import hashlib
 import itertools
 import json
 import math
@@ -63,10 +64,31 @@ class Job:
     control: str
     duration_s: float | None
     run_dir: str
+    fingerprint: str = ""  # digest of the resolved configuration, control, seed and duration
+    allow_outside: bool = False  # the scenario may name files outside its folder
 
     def spec(self) -> dict:
         return {"scenario": self.scenario, "overrides": list(self.overrides), "seed": self.seed,
-                "control": self.control, "duration_s": self.duration_s, "run_dir": self.run_dir}
+                "control": self.control, "duration_s": self.duration_s, "run_dir": self.run_dir,
+                "fingerprint": self.fingerprint, "allow_outside": self.allow_outside}
+
+
+FINGERPRINT = "sweep_fingerprint.json"  # in every run directory a sweep writes
+
+
+def fingerprint(config: dict, control: str, seed: int, duration_s: float | None) -> str:
+    """Digest of everything that decides a run's results: the resolved scenario (every key, defaults
+    included), what drives the vehicles, the seed and the simulated time."""
+    text = json.dumps({"scenario": config, "control": control, "seed": seed, "duration_s": duration_s},
+                      sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def recorded_fingerprint(run_dir: Path) -> str | None:
+    try:
+        return json.loads((Path(run_dir) / FINGERPRINT).read_text())["fingerprint"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
 
 
 # ------------------------------------------------------------------ arguments
@@ -116,7 +138,7 @@ def point_name(point: tuple[tuple[str, str], ...]) -> str:
 
 
 def plan(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]]], controls: list[str], out: Path,
-         duration_s: float | None = None, overrides: tuple[str, ...] = ()) -> list[Job]:
+         duration_s: float | None = None, overrides: tuple[str, ...] = (), allow_outside: bool = False) -> list[Job]:
     """Every job of the sweep. Each grid point's configuration is loaded here first, so a bad key
     or value stops the sweep before any run starts, with the scenario loader's message."""
     from nrtraffic import scenario
@@ -126,13 +148,15 @@ def plan(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]]
     for values in itertools.product(*[v for _, v in grid]):
         point = tuple(zip(keys, values))
         ov = tuple(overrides) + tuple(f"{k}={v}" for k, v in point)
-        sc = scenario.load(scenario_path, list(ov))
+        sc = scenario.load(scenario_path, list(ov), allow_outside=allow_outside)
         if any(c != NRTRAFFIC for c in controls) and not sc.junction.id:
             raise SweepError("--baseline needs a scenario with a [junction]")
+        config = sc.to_dict()
         for seed in seeds:
             for control in controls:
                 d = Path(out) / "runs" / point_name(point) / f"seed{seed}" / control
-                jobs.append(Job(str(Path(scenario_path).resolve()), ov, point, seed, control, duration_s, str(d)))
+                jobs.append(Job(str(Path(scenario_path).resolve()), ov, point, seed, control, duration_s, str(d),
+                                fingerprint(config, control, seed, duration_s), allow_outside))
     return jobs
 
 
@@ -147,6 +171,8 @@ def finished(job: Job) -> dict | None:
     except (OSError, ValueError):
         return None
     if s.get("status") != "ok" or s.get("seed") != job.seed:
+        return None
+    if job.fingerprint and recorded_fingerprint(job.run_dir) != job.fingerprint:
         return None
     if job.duration_s and not math.isclose(float(s.get("sim_time_s") or 0.0), job.duration_s, abs_tol=0.5):
         return None
@@ -167,7 +193,7 @@ def run_job(spec: dict) -> dict:
     failed = final.parent / f"{final.name}.failed"
     with _ONE_SIMULATION:
         try:
-            sc = scenario.load(spec["scenario"], spec["overrides"])
+            sc = scenario.load(spec["scenario"], spec["overrides"], allow_outside=spec.get("allow_outside", False))
             if spec["control"] == NRTRAFFIC:
                 res = run_scenario(sc, tmp, seed=spec["seed"], duration_s=spec["duration_s"])
             else:
@@ -177,11 +203,51 @@ def run_job(spec: dict) -> dict:
                 shutil.rmtree(failed, ignore_errors=True)
                 tmp.rename(failed)
             raise
+    if spec.get("fingerprint"):
+        (tmp / FINGERPRINT).write_text(json.dumps({
+            "fingerprint": spec["fingerprint"], "scenario": spec["scenario"], "overrides": spec["overrides"],
+            "control": spec["control"], "seed": spec["seed"], "duration_s": spec["duration_s"]}, indent=1) + "\n")
     shutil.rmtree(failed, ignore_errors=True)
     if final.exists():  # an earlier, unfinished or different run of this job
         shutil.rmtree(final)
     tmp.rename(final)
     return res.summary
+
+
+def check_resume(jobs: list[Job], force: bool = False) -> None:
+    """Refuse to resume into run directories made with another configuration (a different
+    scenario, ``--set``, grid value or duration), unless ``force``: then they are run again."""
+    clash = []
+    for j in jobs:
+        d = Path(j.run_dir)
+        if (d / "summary.json").is_file() and recorded_fingerprint(d) != j.fingerprint:
+            clash.append(d)
+    if clash and not force:
+        raise SweepError(
+            f"{len(clash)} run director{'y' if len(clash) == 1 else 'ies'} in the output folder "
+            f"{'was' if len(clash) == 1 else 'were'} made with a different configuration (or by an older version), "
+            f"e.g. {clash[0]}: use another --out, or --force to run them again with this one")
+
+
+def remove_stale(out: Path) -> list[Path]:
+    """Delete the temporary run directories of runs that were killed (``.<control>.tmp-<pid>-...``
+    under ``out/runs``) whose process is gone; returns them."""
+    gone = []
+    for d in Path(out).glob("runs/**/.*.tmp-*"):
+        try:
+            pid = int(d.name.split(".tmp-")[1].split("-")[0])
+        except (IndexError, ValueError):
+            continue
+        try:
+            os.kill(pid, 0)
+            continue  # still running (another sweep on the same folder)
+        except ProcessLookupError:
+            pass
+        except PermissionError:
+            continue
+        shutil.rmtree(d, ignore_errors=True)
+        gone.append(d)
+    return gone
 
 
 # ------------------------------------------------------------------ the sweep
@@ -390,7 +456,9 @@ def main(args) -> int:
     grid = parse_grid(args.grid)
     controls = [NRTRAFFIC] + parse_baselines(args.baseline)
     jobs = plan(args.scenario, parse_seeds(args.seeds), grid, controls, args.out, args.duration,
-                tuple(args.overrides))
+                tuple(args.overrides), allow_outside=args.allow_outside)
+    check_resume(jobs, force=args.force)
+    remove_stale(args.out)
     df = run_sweep(jobs, args.out, workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress)
     print((Path(args.out) / "sweep.md").read_text())
     n_failed = int((df["status"] != "ok").sum())

@@ -91,3 +91,36 @@ def test_a_sweep_run_replays(study):
     run = df.loc[(df["status"] == "ok") & (df["control"] == "nrtraffic"), "run_dir"].iloc[0]
     assert "=" in run
     assert main(["replay", run, "--no-progress"]) == 0
+
+
+def test_resuming_with_another_configuration_is_refused_unless_forced(study, tmp_path, capsys):
+    argv, _, out = study
+    copy = tmp_path / "out"
+    shutil.copytree(out, copy)
+    argv = [a if a != str(out) else str(copy) for a in argv]
+    df = pd.read_csv(copy / "sweep.csv")
+    ok_dirs = [copy / Path(d).relative_to(out) for d in df.loc[df["status"] == "ok", "run_dir"]]
+    stamps = {d: (d / "summary.json").stat().st_mtime_ns for d in ok_dirs}
+    changed = argv + ["--set", "demand.rate_veh_h=300"]
+    assert main(changed) == 2
+    assert "different configuration" in capsys.readouterr().err
+    assert {d: (d / "summary.json").stat().st_mtime_ns for d in ok_dirs} == stamps  # nothing touched
+    # --force runs them again with the new configuration, which then resumes cleanly
+    assert main(changed + ["--force"]) == 1  # the broken network still fails
+    assert all((d / "summary.json").stat().st_mtime_ns != stamps[d] for d in ok_dirs)
+    assert main(changed) == 1
+
+
+def test_stale_temporary_run_directories_are_removed(tmp_path):
+    import os
+
+    from runners.sweep import remove_stale
+
+    dead = 2**22 + 12345  # above the default pid_max: no such process
+    stale = tmp_path / "runs" / "base" / "seed1" / f".nrtraffic.tmp-{dead}-abcd1234"
+    live = tmp_path / "runs" / "base" / "seed2" / f".nrtraffic.tmp-{os.getpid()}-abcd1234"
+    for d in (stale, live):
+        d.mkdir(parents=True)
+        (d / "summary.json").write_text("{}")
+    assert remove_stale(tmp_path) == [stale]
+    assert not stale.exists() and live.exists()

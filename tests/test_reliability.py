@@ -1,0 +1,155 @@
+"""Faults and bad input: a run killed by SIGTERM or SIGKILL keeps what it finished, a full disk is a
+clear failure, and every bad flag or file is refused with exit 2 and a message naming it."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import xml.etree.ElementTree as ET
+
+import pandas as pd
+import pyarrow.parquet as pq
+import pytest
+
+from conftest import ROOT, SCENARIOS
+from nrtraffic.results import PARTIAL_TRAJECTORIES, read_trajectories
+from runners.cli import main
+
+CROSS4 = SCENARIOS / "cross4" / "scenario.toml"
+
+
+def _start_long_run(out):
+    """cross4 for 600 s with trajectories every 0.1 s, in a process of its own (same CPU target)."""
+    cmd = [sys.executable, "-m", "runners.cli", "run", str(CROSS4), "--duration", "600", "--set",
+           "outputs.trajectory_interval_s=0.1", "--out", str(out), "--no-progress"]
+    return subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_for_checkpoint(proc, out, timeout=240.0):
+    t_end = time.monotonic() + timeout
+    while time.monotonic() < t_end:
+        if proc.poll() is not None:
+            pytest.fail(f"the run ended early: {proc.communicate()}")
+        if (out / "summary.json").is_file() and (out / PARTIAL_TRAJECTORIES).is_file():
+            return json.loads((out / "summary.json").read_text())
+        time.sleep(0.2)
+    proc.kill()
+    pytest.fail("no checkpoint within the time limit")
+
+
+def test_sigterm_stops_a_run_and_keeps_every_output_readable(tmp_path):
+    out = tmp_path / "run"
+    proc = _start_long_run(out)
+    _wait_for_checkpoint(proc, out)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 1, err
+    assert "SIGTERM" in err and str(out) in err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "failed" and "SIGTERM" in s["error"]
+    assert 0 < s["sim_time_s"] < 600
+    v = pd.read_csv(out / "vehicles.csv")
+    assert len(v) == s["vehicles_spawned"] > 0
+    t = pq.read_table(out / "trajectories.parquet").to_pandas()  # a whole Parquet file, with its footer
+    assert len(t) > 0 and t["t"].max() <= s["sim_time_s"] + 1e-9
+    assert not (out / PARTIAL_TRAJECTORIES).exists()
+    for f in ("tripinfo.xml", "collisions.xml"):  # SUMO closed its outputs
+        ET.parse(out / f)
+
+
+def test_sigkill_leaves_the_last_checkpoint_and_the_trajectories_up_to_it(tmp_path):
+    out = tmp_path / "run"
+    proc = _start_long_run(out)
+    first = _wait_for_checkpoint(proc, out)
+    assert first["status"] == "running"
+    proc.kill()
+    proc.communicate(timeout=60)
+    s = json.loads((out / "summary.json").read_text())  # whole: written under a temporary name
+    assert s["status"] == "running" and s["sim_time_s"] > 0
+    v = pd.read_csv(out / "vehicles.csv")
+    assert len(v) > 0
+    t = read_trajectories(out)  # the stream, up to its last whole batch
+    assert len(t) > 0 and t["t"].max() > 0
+    assert not (out / "trajectories.parquet").exists()
+
+
+def test_a_full_disk_is_a_clear_failure_and_the_figures_are_kept(tmp_path, monkeypatch, capsys):
+    from nrtraffic import results
+
+    def full(self):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(results.TrajectoryWriter, "flush", full)
+    out = tmp_path / "run"
+    code = main(["run", str(CROSS4), "--duration", "30", "--out", str(out), "--no-progress"])
+    assert code == 1
+    assert "No space left on device" in capsys.readouterr().err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "failed" and "No space left" in s["error"]
+    assert (out / "vehicles.csv").is_file()
+
+
+@pytest.mark.parametrize("flags, named", [
+    (["--duration", "-5"], "--duration"), (["--duration", "nan"], "--duration"), (["--duration", "inf"], "--duration"),
+    (["--duration", "1e12"], "--duration"), (["--seed", "-1"], "--seed"), (["--seed", "2.5"], "--seed"),
+    (["--seed", str(2**31)], "--seed"),
+])
+def test_bad_run_flags_exit_2_naming_the_flag(flags, named, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["run", str(CROSS4), "--out", str(tmp_path / "o"), *flags])
+    assert exc.value.code == 2
+    assert f"argument {named}" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("flags", [["--rtol", "-1"], ["--atol", "nan"], ["--atol", "inf"]])
+def test_bad_replay_tolerances_exit_2(flags, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["replay", str(ROOT / "tests" / "golden" / "cross4"), *flags])
+    assert exc.value.code == 2
+    assert flags[0] in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("what", ["summary.json", "trajectories.parquet"])
+def test_replay_of_a_truncated_file_exits_2_naming_it(what, tmp_path, capsys):
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(ROOT / "tests" / "golden" / "cross4", run)
+    data = (run / what).read_bytes()
+    (run / what).write_bytes(data[: len(data) // 2])
+    assert main(["replay", str(run), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert what in err and "cannot be read" in err
+
+
+def test_out_that_is_a_file_or_unwritable_exits_2(tmp_path, capsys):
+    f = tmp_path / "file"
+    f.write_text("x")
+    for out in (f, f / "below"):
+        assert main(["run", str(CROSS4), "--out", str(out), "--no-progress"]) == 2
+        assert "--out" in capsys.readouterr().err
+
+
+def test_binary_scenario_file_exits_2(tmp_path, capsys):
+    bad = tmp_path / "scenario.toml"
+    bad.write_bytes(bytes(range(256)))
+    assert main(["run", str(bad), "--out", str(tmp_path / "o")]) == 2
+    assert "not a UTF-8 text file" in capsys.readouterr().err
+
+
+def test_scenario_files_cannot_reach_outside_their_folder(tmp_path, capsys):
+    d = tmp_path / "scen"
+    d.mkdir()
+    text = CROSS4.read_text().replace('network = "net.net.xml"', f'network = "../{"../" * 12}etc/hostname"')
+    (d / "scenario.toml").write_text(text)
+    assert main(["run", str(d), "--out", str(tmp_path / "o")]) == 2
+    assert "outside the scenario's folder" in capsys.readouterr().err
+    assert not (tmp_path / "o" / "sumo").exists()
+    # with --allow-outside a network elsewhere is used
+    (d / "scenario.toml").write_text(CROSS4.read_text().replace(
+        'network = "net.net.xml"', f'network = "{SCENARIOS / "cross4" / "net.net.xml"}"'))
+    assert main(["run", str(d), "--out", str(tmp_path / "o2"), "--duration", "5", "--allow-outside",
+                 "--no-progress"]) == 0
