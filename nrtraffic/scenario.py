@@ -288,7 +288,7 @@ class Outputs:
     sumo_fcd: bool = False  # SUMO's floating-car data of every vehicle (fcd.xml), e.g. for SUMO-driven leaders
 
     def validate(self) -> None:
-        if self.trajectory_interval_s <= 0:
+        if not (0 < self.trajectory_interval_s < math.inf):
             raise ScenarioError("outputs.trajectory_interval_s must be > 0")
 
 
@@ -480,6 +480,10 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
     ratio = sc.sumo.step_length_s / sc.controller.plant_step_s
     if abs(ratio - round(ratio)) > 1e-9:
         raise ScenarioError("sumo.step_length_s must be a whole multiple of controller.plant_step_s")
+    ratio = sc.outputs.trajectory_interval_s / sc.sumo.step_length_s
+    if ratio < 1.0 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
+        raise ScenarioError(f"outputs.trajectory_interval_s ({sc.outputs.trajectory_interval_s:g} s) must be a whole "
+                            f"multiple of sumo.step_length_s ({sc.sumo.step_length_s:g} s)")
     return sc
 
 
@@ -510,12 +514,17 @@ def load(path: str | Path, overrides: list[str] | tuple[str, ...] = (), allow_ou
         raise ScenarioError(f"{path}: {exc}") from None
 
 
-def dump(sc: Scenario, path: Path, network: str | None = None) -> None:
-    """Write the resolved configuration (``scenario.resolved.toml``); ``network`` replaces the
-    network path (a copy placed beside the file)."""
+def dumps(sc: Scenario, network: str | None = None) -> str:
+    """The resolved configuration as TOML text; ``network`` replaces the network path (a copy
+    placed beside the file)."""
     import tomli_w
 
     d = sc.to_dict()
     if network is not None:
         d["scenario"]["network"] = network
-    path.write_text(tomli_w.dumps(d))
+    return tomli_w.dumps(d)
+
+
+def dump(sc: Scenario, path: Path, network: str | None = None) -> None:
+    """Write the resolved configuration (``scenario.resolved.toml``), see :func:`dumps`."""
+    path.write_text(dumps(sc, network))

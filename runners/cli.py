@@ -53,6 +53,8 @@ def _add_run(sub) -> None:
                    help="simulated time [s] (default: the scenario's; 0 runs until every vehicle has left)")
     p.add_argument("--out", type=Path, default=None, metavar="DIR",
                    help="run directory (default: runs/<scenario>-seed<N>)")
+    p.add_argument("--force", action="store_true",
+                   help="replace what is in --out when it is not a finished run of this configuration")
     p.add_argument("--allow-outside", action="store_true",
                    help="let the scenario name files outside its own folder (refused by default)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
@@ -82,6 +84,8 @@ def _add_baseline(sub) -> None:
     p.add_argument("--seed", type=_seed, default=None, help="random seed (default: the scenario's)")
     p.add_argument("--duration", type=_duration, default=None, metavar="S", help="simulated time [s]")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="run directory")
+    p.add_argument("--force", action="store_true",
+                   help="replace what is in --out when it is not a finished run of this configuration")
     p.add_argument("--allow-outside", action="store_true",
                    help="let the scenario name files outside its own folder (refused by default)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
@@ -173,6 +177,18 @@ def writable_dir(path: Path) -> None:
         raise OutputError(f"--out {path}: cannot write there: {exc.strerror or exc}") from None
 
 
+def _claim(out: Path, sc, seed, duration, control: str, force: bool) -> None:
+    from runners.single import claim_run_dir
+
+    writable_dir(out)
+    try:
+        claim_run_dir(out, sc, seed, duration, control, force)
+    except ValueError as exc:
+        raise OutputError(str(exc)) from None
+    except OSError as exc:
+        raise OutputError(f"--out {out}: cannot clear the earlier run: {exc}") from None
+
+
 class Terminated(KeyboardInterrupt):
     """SIGTERM, handled like Ctrl-C: the run stops, and what it finished is written."""
 
@@ -216,7 +232,7 @@ def main(argv: list[str] | None = None) -> int:
             from runners.baseline import run_baseline
 
             sc = scenario.load(args.scenario, args.overrides, allow_outside=args.allow_outside)
-            writable_dir(args.out)
+            _claim(args.out, sc, args.seed, args.duration, f"sumo_{args.junction}", args.force)
             res = run_baseline(sc, args.junction, args.out, seed=args.seed, duration_s=args.duration,
                                progress=not args.no_progress)
             _print_summary(res.summary, args.out)
@@ -257,7 +273,7 @@ def _cmd_run(args) -> int:
     sc = scenario.load(args.scenario, args.overrides, allow_outside=args.allow_outside)
     seed = sc.general.seed if args.seed is None else args.seed
     out = args.out or Path("runs") / f"{sc.general.name}-seed{seed}"
-    writable_dir(out)
+    _claim(out, sc, seed, args.duration, "nrtraffic", args.force)
     res = run_scenario(sc, out, seed=seed, duration_s=args.duration, progress=not args.no_progress)
     _print_summary(res.summary, out)
     return 0

@@ -3,16 +3,28 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import shutil
 from pathlib import Path
 
 from nrtraffic import scenario as scenario_mod
 from nrtraffic.engine import Engine, RunFailed
 from nrtraffic.results import RunResult, TrajectoryWriter, write_summary, write_vehicles
+from nrtraffic.sumo.network import check_scenario, check_sumo_args
+
+
+def check(sc: scenario_mod.Scenario) -> None:
+    """What can be checked before SUMO starts: the network is a SUMO network with the junction and
+    the edges the scenario names, and ``sumo.extra_args`` are SUMO options (NetworkError)."""
+    edges = tuple(e for a in sc.approaches for e in (*a.route, a.merge_entry_edge))
+    check_scenario(sc.network_path, sc.junction.id, edges)
+    check_sumo_args(tuple(sc.sumo.extra_args))
 
 
 def prepare_run_dir(sc: scenario_mod.Scenario, out: Path) -> Path:
-    """Create ``out`` with the SUMO network copied in and ``scenario.resolved.toml`` written."""
+    """Check the scenario against its network (:func:`check`), then create ``out`` with the SUMO
+    network copied in."""
+    check(sc)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "sumo").mkdir(exist_ok=True)
@@ -30,16 +42,58 @@ def run_scenario(sc: scenario_mod.Scenario, out: Path, seed: int | None = None, 
     return execute(sc, prepare_run_dir(sc, out), seed, duration_s, progress)
 
 
+def resolve(sc: scenario_mod.Scenario, seed: int | None, duration_s: float | None) -> scenario_mod.Scenario:
+    """The scenario with the seed and duration a run uses made explicit."""
+    general = dataclasses.replace(sc.general, seed=int(sc.general.seed if seed is None else seed),
+                                  duration_s=float(sc.general.duration_s if duration_s is None else duration_s))
+    return dataclasses.replace(sc, general=general)
+
+
+def resolved_text(sc: scenario_mod.Scenario, seed: int | None, duration_s: float | None) -> str:
+    """``scenario.resolved.toml`` of a run of ``sc`` (its network copied into ``sumo/``)."""
+    return scenario_mod.dumps(resolve(sc, seed, duration_s), network=f"sumo/{sc.network_path.name}")
+
+
+# what a run writes into its directory (``--force`` removes these, and nothing else)
+RUN_FILES = ("summary.json", "vehicles.csv", "trajectories.parquet", "trajectories.parquet.tmp",
+             "trajectories.partial.arrows", "scenario.resolved.toml", "movements.json", "tripinfo.xml",
+             "collisions.xml", "fcd.xml", "summary.json.tmp", "vehicles.csv.tmp", "sumo")
+
+
+def claim_run_dir(out: Path, sc: scenario_mod.Scenario, seed: int | None, duration_s: float | None, control: str,
+                  force: bool = False) -> None:
+    """Make ``out`` ready for a run: a missing or empty folder, or a finished run of the same
+    configuration and control (run again), is taken as it is. Any other non-empty folder is refused
+    (ValueError) unless ``force``; then the files a run writes are removed from it first, so that
+    nothing of an earlier run stays beside the new one."""
+    out = Path(out)
+    if not out.is_dir() or not any(out.iterdir()):
+        return
+    same = False
+    try:
+        s = json.loads((out / "summary.json").read_text())
+        same = (s.get("status") == "ok" and s.get("control") == control
+                and (out / "scenario.resolved.toml").read_text() == resolved_text(sc, seed, duration_s))
+    except (OSError, ValueError):
+        pass
+    if not (same or force):
+        raise ValueError(f"--out {out} is not empty and is not a finished run of this configuration: "
+                         "choose another folder, or --force to replace the run in it")
+    for name in RUN_FILES:
+        p = out / name
+        if p.is_dir():
+            shutil.rmtree(p)
+        elif p.exists():
+            p.unlink()
+
+
 def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: float | None, progress: bool,
             extra_summary: dict | None = None, **engine_options) -> RunResult:
     """Record the configuration actually used (seed, duration) in ``scenario.resolved.toml``, run
     the engine (``engine_options`` go to :class:`Engine`) and write the results into the prepared
     run directory ``out``, also when the run stops early."""
-    seed = sc.general.seed if seed is None else seed
-    general = dataclasses.replace(sc.general, seed=int(seed),
-                                  duration_s=float(sc.general.duration_s if duration_s is None else duration_s))
-    resolved = dataclasses.replace(sc, general=general)
-    scenario_mod.dump(resolved, out / "scenario.resolved.toml", network=f"sumo/{sc.network_path.name}")
+    resolved = resolve(sc, seed, duration_s)
+    (out / "scenario.resolved.toml").write_text(resolved_text(sc, seed, duration_s))
     writer = TrajectoryWriter(out / "trajectories.parquet")
 
     def checkpoint(result: RunResult) -> None:

@@ -142,6 +142,7 @@ def plan(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]]
     """Every job of the sweep. Each grid point's configuration is loaded here first, so a bad key
     or value stops the sweep before any run starts, with the scenario loader's message."""
     from nrtraffic import scenario
+    from runners.single import check
 
     keys = [k for k, _ in grid]
     jobs = []
@@ -149,6 +150,7 @@ def plan(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]]
         point = tuple(zip(keys, values))
         ov = tuple(overrides) + tuple(f"{k}={v}" for k, v in point)
         sc = scenario.load(scenario_path, list(ov), allow_outside=allow_outside)
+        check(sc)
         if any(c != NRTRAFFIC for c in controls) and not sc.junction.id:
             raise SweepError("--baseline needs a scenario with a [junction]")
         config = sc.to_dict()

@@ -153,3 +153,52 @@ def test_scenario_files_cannot_reach_outside_their_folder(tmp_path, capsys):
         'network = "net.net.xml"', f'network = "{SCENARIOS / "cross4" / "net.net.xml"}"'))
     assert main(["run", str(d), "--out", str(tmp_path / "o2"), "--duration", "5", "--allow-outside",
                  "--no-progress"]) == 0
+
+
+def _scenario_copy(tmp_path, old=None, new=None, extra=""):
+    d = tmp_path / "scen"
+    d.mkdir(exist_ok=True)
+    for f in (SCENARIOS / "cross4").iterdir():
+        if f.is_file():
+            (d / f.name).write_bytes(f.read_bytes())
+    text = (d / "scenario.toml").read_text()
+    if old is not None:
+        assert old in text
+        text = text.replace(old, new)
+    (d / "scenario.toml").write_text(text + extra)
+    return d
+
+
+@pytest.mark.parametrize("old, new, extra, message", [
+    ('id = "C"', 'id = "Q"', "", "junction 'Q' is not in it"),
+    ('network = "net.net.xml"', 'network = "net.nod.xml"', "", "not a SUMO network"),
+    ("", "", '\n[[approaches]]\nname = "x"\nroute = ["N_in", "nowhere"]\nmerge_entry_edge = "N_in"\n',
+     "'nowhere' is not in it"),
+    ('preset = "paper"', 'preset = "paper"\nlength = 1e6', "", "beyond a road vehicle"),
+    ("trajectory_interval_s = 0.5", "trajectory_interval_s = 0.25", "", "whole multiple of sumo.step_length_s"),
+    ("lateral_resolution_m = 0.25", 'lateral_resolution_m = 0.25\nextra_args = ["--no-such-option", "1"]', "",
+     "no option --no-such-option"),
+])
+def test_scenarios_that_would_run_wrong_exit_2_naming_the_problem(old, new, extra, message, tmp_path, capsys):
+    d = _scenario_copy(tmp_path, old or None, new or None, extra)
+    assert main(["run", str(d), "--out", str(tmp_path / "o"), "--duration", "5", "--no-progress"]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "o" / "summary.json").exists()
+
+
+def test_out_holding_another_run_is_refused_unless_forced(tmp_path, capsys):
+    out = tmp_path / "o"
+    base = ["run", str(CROSS4), "--out", str(out), "--no-progress"]
+    assert main(base + ["--duration", "4"]) == 0
+    assert main(base + ["--duration", "4"]) == 0  # a finished run of the same configuration: run again
+    assert main(base + ["--duration", "5"]) == 2
+    assert "not a finished run of this configuration" in capsys.readouterr().err
+    (out / "fcd.xml").write_text("<old/>")  # left by an earlier run that wrote one
+    (out / "notes.txt").write_text("mine")  # not a run file: kept
+    assert main(base + ["--duration", "5", "--force"]) == 0
+    assert not (out / "fcd.xml").exists() and (out / "notes.txt").read_text() == "mine"
+    assert json.loads((out / "summary.json").read_text())["sim_time_s"] == pytest.approx(5.0)
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "x").write_text("")
+    assert main(["baseline", str(CROSS4), "--junction", "priority", "--out", str(other), "--duration", "4"]) == 2

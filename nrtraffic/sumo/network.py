@@ -47,3 +47,63 @@ def junction_movements(net_path: Path, junction_id: str) -> tuple[list[JunctionM
         raise NetworkError(f"junction {junction_id!r} has no movements")
     x, y = node.getCoord()
     return out, (float(x), float(y))
+
+
+def check_scenario(net_path: Path, junction_id: str = "", edges: tuple[str, ...] = ()) -> None:
+    """Check, before SUMO starts, that ``net_path`` is a SUMO network holding the junction and the
+    edges a scenario names; raises :class:`NetworkError` naming the file and every missing id."""
+    import xml.etree.ElementTree as ET
+
+    try:
+        root_tag, nodes, edge_ids = None, set(), set()
+        for _, el in ET.iterparse(net_path, events=("start",)):
+            if root_tag is None:
+                root_tag = el.tag
+                if root_tag != "net":
+                    raise NetworkError(f"{net_path} is not a SUMO network (its root element is <{root_tag}>)")
+            elif el.tag == "junction":
+                nodes.add(el.get("id"))
+            elif el.tag == "edge" and el.get("function") != "internal":
+                edge_ids.add(el.get("id"))
+    except ET.ParseError as exc:
+        raise NetworkError(f"{net_path} is not a readable SUMO network: {exc}") from None
+    except OSError as exc:
+        raise NetworkError(f"{net_path} cannot be read: {exc}") from None
+    problems = []
+    if junction_id and junction_id not in nodes:
+        problems.append(f"junction {junction_id!r} is not in it")
+    missing = [e for e in dict.fromkeys(edges) if e not in edge_ids]
+    if missing:
+        problems.append(f"edge{'s' if len(missing) > 1 else ''} {', '.join(map(repr, missing))} "
+                        f"{'are' if len(missing) > 1 else 'is'} not in it")
+    if problems:
+        raise NetworkError(f"{net_path}: " + "; ".join(problems))
+
+
+_SUMO_OPTIONS: set[str] = set()
+
+
+def sumo_options() -> set[str]:
+    """Names of SUMO's command-line options (from ``sumo --save-template``), read once."""
+    if not _SUMO_OPTIONS:
+        import subprocess
+        import xml.etree.ElementTree as ET
+
+        import sumo
+
+        exe = Path(sumo.SUMO_HOME) / "bin" / "sumo"
+        xml = subprocess.run([str(exe), "--save-template", "stdout"], capture_output=True, text=True, check=True).stdout
+        for section in ET.fromstring(xml[xml.index("<"):]):
+            _SUMO_OPTIONS.update(opt.tag for opt in section)
+    return _SUMO_OPTIONS
+
+
+def check_sumo_args(args: tuple[str, ...]) -> None:
+    """Every ``--name`` in ``args`` (``sumo.extra_args``) must be one of SUMO's options."""
+    bad = [a for a in args if a.startswith("--")]
+    if not bad:
+        return
+    known = sumo_options()
+    bad = [a for a in bad if a[2:].split("=")[0] not in known]
+    if bad:
+        raise NetworkError(f"sumo.extra_args: SUMO has no option {', '.join(bad)}")

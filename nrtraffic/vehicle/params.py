@@ -7,6 +7,10 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 
 
+MAX_LENGTH_M = 25.0  # longest body accepted [m] (a truck and trailer)
+MAX_WIDTH_M = 4.0  # widest body accepted [m]
+
+
 @dataclass(frozen=True)
 class BicycleParams:
     """Parameters of the dynamic bicycle model (paper eq. 1) and its low-speed treatment.
@@ -54,6 +58,9 @@ class BicycleParams:
             val = getattr(self, f.name)
             if not np.isfinite(val) or val <= 0.0:
                 raise ValueError(f"vehicle parameter {f.name} must be a positive number, got {val!r}")
+        if self.length > MAX_LENGTH_M or self.width > MAX_WIDTH_M:
+            raise ValueError(f"vehicle parameter length ({self.length:g} m) or width ({self.width:g} m) is beyond a "
+                             f"road vehicle's ({MAX_LENGTH_M:g} m x {MAX_WIDTH_M:g} m)")
         if self.v_blend_high <= self.v_blend_low:
             raise ValueError("vehicle parameter v_blend_high must be above v_blend_low")
         if self.cg_to_front >= self.length:
