@@ -138,10 +138,14 @@ def test_coordinator_with_conflicts_by_hand():
     assert a3.t_merge == pytest.approx(max(3.0 + D / v, exit_b1 + max(1.0, 12.0 / vm2),
                                            exit_a2 + 12.0 / vm2 - S / 20.0))
     assert a3.binding == "rear_end"
-    # a turn slower than the entry speed: fixed-terminal profile to the turn speed
+    # a turn slower than the entry speed: fixed-terminal profile to the turn speed, the earliest
+    # arrival cruising at the entry speed and braking on the arc whose deceleration peaks at 3 m/s^2
     t1 = c.schedule("t1", "lane_T", 50.0, v, D, "T", 25.0, v_limit=6.5)
-    assert t1.profile.v_m == pytest.approx(6.5) and t1.profile.kind == "fixed_speed"
-    assert t1.t_merge == pytest.approx(50.0 + 2 * D / (v + 6.5))
+    assert t1.profile.v_m == pytest.approx(6.5) and t1.profile.kind.startswith("fixed_speed")
+    s_arc = 2 * (v - 6.5) / 3.0
+    assert t1.t_merge == pytest.approx(50.0 + (D + s_arc * (v - 6.5) / 3.0) / v)
+    _, _, u = t1.profile.evaluate(np.linspace(50.0, t1.t_merge - 1e-9, 5001))
+    assert u.min() >= -3.0 - 1e-9 and t1.binding == "earliest"
 
 
 def test_recorded_run_keeps_conflicting_vehicles_apart(cross4_run):
@@ -194,3 +198,35 @@ def test_baseline_delay_agrees_with_sumo_time_loss(junction, tmp_path):
     assert diff.abs().median() < 1.0
     assert abs(diff.mean()) < 0.5
     assert res.summary["max_tracking_error_m"] is None  # not applicable to a baseline
+
+
+@pytest.mark.parametrize("movement", ["N_in.left", "N_in.right", "W_in.straight"])
+def test_an_unhindered_vehicle_loses_no_more_than_physics_requires(movement, tmp_path):
+    """A lone vehicle, bound by nothing but its own earliest arrival: its delay is at most 0.5 s
+    above cruising at the entry speed, braking at |u_min| to its crossing speed just in time and
+    crossing the merging zone at it (REFERENCE.md section 6)."""
+    from conftest import SCENARIOS
+
+    d = tmp_path / "scen"
+    d.mkdir()
+    for f in (SCENARIOS / "cross4").iterdir():
+        if f.is_file():
+            (d / f.name).write_bytes(f.read_bytes())
+    text = (d / "scenario.toml").read_text().replace("rate_veh_h = 400.0", "rate_veh_h = 0.0\nmean_headway_s = 0.0")
+    text += f'\n[[vehicles]]\nid = "lone"\napproach = "{movement}"\ndepart_s = 1.0\ndepart_speed_mps = 13.89\n'
+    (d / "scenario.toml").write_text(text)
+    sc = scenario.load(d / "scenario.toml", ["scenario.duration_s=75.0"])
+    out = tmp_path / "run"
+    res = run_scenario(sc, out)
+    v = res.vehicles.set_index("vehicle_id").loc["lone"]
+    mv = json.loads((out / "movements.json").read_text())["movements"][movement]
+    assert v["binding"] == "earliest" and np.isfinite(v["delay_s"])
+    v0, u = v["v_enter_mps"], -sc.planning.u_min_mps2
+    vm = min(mv["v_limit_mps"] or np.inf, sc.planning.v_max_mps, v0)
+    D = mv["merge_entry_m"] - mv["control_zone_start_m"]
+    S = mv["zone_length_m"]
+    tb = (v0 - vm) / u
+    t_phys = (D - (v0 + vm) / 2.0 * tb) / v0 + tb + S / vm
+    delay_min = t_phys - (D + S) / v0
+    assert delay_min - 0.05 <= v["delay_s"] <= delay_min + 0.5, (v["delay_s"], delay_min)
+    assert res.summary["collisions"] == 0 and res.summary["max_lateral_dev_m"] < 0.5

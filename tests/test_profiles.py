@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from nrtraffic.planning.profiles import (InfeasibleProfile, PlanBounds, fixed_terminal, free_terminal, max_time,
-                                         min_time, rear_end_constrained, rear_end_violation)
+from nrtraffic.planning.profiles import (InfeasibleProfile, PlanBounds, earliest_fixed, fixed_terminal, free_terminal,
+                                         max_time, min_time, rear_end_constrained, rear_end_violation)
 
 B = PlanBounds(v_min_mps=1.0, v_max_mps=20.0, u_min_mps2=-3.0, u_max_mps2=2.5)
 
@@ -60,15 +60,19 @@ def test_speed_bounded_profiles(T, kind):
     assert prof.evaluate(tau1)[1] == pytest.approx(vb)
 
 
-def _qp_energy(v0, D, T, b, n=400):
+def _qp_energy(v0, D, T, b, n=400, vm=None):
     """Independent reference: the discretised problem min 1/2 sum u_k^2 dt s.t. double-integrator
-    dynamics (exact zero-order hold), p_N = D, bounds on u and v -- solved as a QP by OSQP."""
+    dynamics (exact zero-order hold), p_N = D (and v_N = vm when given), bounds on u and v --
+    solved as a QP by OSQP."""
     from qpsolvers import solve_qp
 
     dt = T / n
     # p_N = v0 T + sum_k u_k dt^2 (N - k - 1/2); v_j = v0 + dt sum_{k<j} u_k
     A_eq = np.array([[dt * dt * (n - k - 0.5) for k in range(n)]])
     b_eq = np.array([D - v0 * T])
+    if vm is not None:
+        A_eq = np.vstack([A_eq, np.full(n, dt)])
+        b_eq = np.array([D - v0 * T, vm - v0])
     L = np.tril(np.ones((n, n))) * dt
     G = np.vstack([L, -L])
     h = np.concatenate([np.full(n, b.v_max_mps - v0), np.full(n, v0 - b.v_min_mps)])
@@ -112,6 +116,38 @@ def test_fixed_terminal_solves_the_boundary_value_system():
     assert np.allclose(p, a * t**3 / 6 + b * t**2 / 2 + c * t + d)
     assert np.allclose(u[:-1], a * t[:-1] + b)  # after T: constant speed
     assert v[-1] == pytest.approx(vm)
+
+
+@pytest.mark.parametrize("v0, T", [(13.89, 29.6), (13.89, 31.0), (13.89, 33.5), (12.0, 32.0)])
+def test_fixed_terminal_with_the_speed_bound_matches_discretised_qp(v0, T):
+    """A car entering at (or near) the limit that must cross at 8 m/s: for merge times where the
+    cubic would exceed v_max, the cruise-arc profile is the bounded optimum."""
+    b = B_JUNCTION
+    prof = fixed_terminal(0.0, v0, 8.0, 400.0, T, b)
+    assert prof.kind == "fixed_speed_cruise"
+    t = np.linspace(0.0, T, 4001)
+    p, v, u = prof.evaluate(t)
+    assert p[-1] == pytest.approx(400.0, abs=1e-9) and v[-1] == pytest.approx(8.0, abs=1e-9)
+    assert v.max() <= b.v_max_mps + 1e-9 and u.min() >= b.u_min_mps2 - 1e-9 and u.max() <= b.u_max_mps2 + 1e-9
+    assert prof.energy() == pytest.approx(_qp_energy(v0, 400.0, T, b, vm=8.0), rel=0.01)
+
+
+def test_earliest_fixed_arrival_is_time_optimal_and_close_to_braking_at_the_bound():
+    """REFERENCE.md section 6: 400 m, 13.89 -> 8 m/s, |u_min| = 3: T = 29.35 s. At that time the arc's
+    deceleration reaches |u_min|, a moment earlier no profile fits, and it loses at most 0.5 s
+    against cruising and braking at constant |u_min| just in time."""
+    b = B_JUNCTION
+    for vm, D in ((8.0, 400.0), (6.5, 400.0), (8.0, 150.0)):
+        T = earliest_fixed(13.89, vm, D, b)
+        prof = fixed_terminal(0.0, 13.89, vm, D, T, b)
+        _, _, u = prof.evaluate(np.linspace(0.0, T - 1e-9, 20001))
+        assert u.min() == pytest.approx(b.u_min_mps2, abs=1e-6)
+        with pytest.raises(InfeasibleProfile):
+            fixed_terminal(0.0, 13.89, vm, D, T - 0.05, b)
+        tb = (13.89 - vm) / -b.u_min_mps2  # constant braking
+        t_phys = (D - (13.89 + vm) / 2.0 * tb) / 13.89 + tb
+        assert 0.0 <= T - t_phys <= 0.5
+    assert earliest_fixed(13.89, 8.0, 400.0, b) == pytest.approx(29.35, abs=0.01)
 
 
 def test_min_and_max_time_are_the_feasibility_limits():

@@ -16,14 +16,15 @@ SHORT = ["--set", "scenario.duration_s=25", "--set", "demand.end_s=12", "--set",
 
 @pytest.fixture(scope="module")
 def study(tmp_path_factory):
-    """cross4 with a second network file that is not a network: the runs on it fail in the worker."""
+    """cross4 with a second network file that SUMO cannot run: the runs on it fail in the worker."""
     from conftest import SCENARIOS
 
     d = tmp_path_factory.mktemp("scenario")
     for f in (SCENARIOS / "cross4").iterdir():
         if f.is_file():
             shutil.copy(f, d / f.name)
-    (d / "broken.net.xml").write_text("<net><edge id=")
+    # a network that passes the checks before SUMO starts but that SUMO cannot run
+    (d / "broken.net.xml").write_text('<net version="1.20"><junction id="C" type="priority" x="0" y="0"/></net>')
     out = tmp_path_factory.mktemp("sweep") / "out"
     argv = ["sweep", str(d / "scenario.toml"), "--seeds", "1:2", "--grid", "scenario.network=net.net.xml,broken.net.xml",
             "--baseline", "priority", "--workers", "2", "--out", str(out), "--no-progress", *SHORT]

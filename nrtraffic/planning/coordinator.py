@@ -36,7 +36,8 @@ import time
 from dataclasses import dataclass, field
 
 from nrtraffic.planning.conflicts import CONFLICT
-from nrtraffic.planning.profiles import (InfeasibleProfile, PlanBounds, Profile, fixed_terminal, free_terminal, max_time,
+from nrtraffic.planning.profiles import (InfeasibleProfile, PlanBounds, Profile, earliest_fixed, fixed_terminal,
+                                         free_terminal, max_time,
                                          min_time, rear_end_constrained, rear_end_violation)
 
 
@@ -127,7 +128,9 @@ class Coordinator:
         zone_length_m : length of its path inside the merging zone [m].
         v_limit : highest speed its path allows through the merging zone [m/s] (a turn). When the
             free-terminal profile would arrive faster, the fixed-terminal profile to ``v_limit`` is
-            used, and the earliest arrival is uniform deceleration to it, ``2 D / (v0 + v_limit)``.
+            used, and the earliest arrival is the time-optimal one within the bounds: cruise, then
+            the arc down to ``v_limit`` whose deceleration peaks at ``|u_min|``
+            (:func:`~nrtraffic.planning.profiles.earliest_fixed`).
 
         Raises
         ------
@@ -137,8 +140,9 @@ class Coordinator:
         t_min = min_time(v0, D, b)
         if self.settings.earliest == "entry_speed" and v0 > 0.0:
             t_min = max(t_min, D / min(v0, b.v_max_mps))
-        if v_limit < v0:
-            t_min = max(min_time(v0, D, b), 2.0 * D / (v0 + v_limit))
+        if v_limit < v0:  # must cross slower than it enters: cruise, then brake on the arc
+            v_cruise = v0 if self.settings.earliest == "entry_speed" else None
+            t_min = earliest_fixed(v0, min(v_limit, b.v_max_mps), D, b, v_cruise)
         t_m, binding, pred = t0 + t_min, "earliest", None
         relation = "none"
         prev = self._last_on_lane.get(lane)
@@ -184,7 +188,7 @@ class Coordinator:
         intrusion = rear_end_violation(prof, leader_pos, t_m, gap)
         if intrusion <= 0.0:
             return prof, intrusion
-        vm = None if (self.settings.terminal_speed == "free" and prof.kind != "fixed_speed") else prof.v_m
+        vm = None if (self.settings.terminal_speed == "free" and not prof.kind.startswith("fixed_speed")) else prof.v_m
         try:
             tq = time.perf_counter()
             safe = rear_end_constrained(t0, v0, D, t_m - t0, self.bounds, leader_pos, t_m, gap, vm=vm,

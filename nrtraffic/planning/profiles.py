@@ -17,7 +17,16 @@ Four closed-form arc sequences (``k = +-u_bound`` signed with the direction of t
   ``q = |vb - v0| / |k|``, ``w^2 = 24 (vb T - (vb - v0) q / 2 - D) / k``.
 
 Fixed terminal speed ``v_m``: ``u = a tau + b``, ``a = (6 T (v0 + v_m) - 12 D)/T^3``,
-``b = (6 D - 2 T (2 v0 + v_m))/T^2``; bounds are checked, not handled.
+``b = (6 D - 2 T (2 v0 + v_m))/T^2``. When that cubic would exceed ``v_max`` (a car entering at
+the limit that must cross slower: ``b > 0``), the optimum has the speed bound as an arc
+(``cruise``): a linear-``u`` arc from ``v0`` up to ``v_max`` ending with ``u = 0``, a cruise at
+``v_max``, and a linear-``u`` arc from ``u = 0`` down to ``v_m``. With ``d1 = v_max - v0``,
+``d2 = v_max - v_m`` the arcs take ``s_i = mu sqrt(d_i)`` (minimising ``J = 4/3 (d1^2 / s1 +
+d2^2 / s2)`` for the distance ``D = v_max T - (d1 s1 + d2 s2) / 3``), ``mu = 3 (v_max T - D) /
+(d1^1.5 + d2^1.5)``; their peak accelerations are ``2 d_i / s_i``. The other bounds are checked.
+The earliest such arrival (:func:`earliest_fixed`) puts the binding arc's peak acceleration on its
+bound: for ``v0 = v_max``, ``s2 = 2 (v0 - v_m) / |u_min|`` and ``T = (D + s2 (v0 - v_m) / 3) / v0``
+(REFERENCE.md section 6).
 
 After ``T`` every profile continues at constant speed (the vehicle crosses the merging zone at
 constant speed).
@@ -215,24 +224,81 @@ def free_terminal(t0: float, v0: float, D: float, T: float, bounds: PlanBounds) 
 
 def fixed_terminal(t0: float, v0: float, vm: float, D: float, T: float, bounds: PlanBounds | None = None) -> Profile:
     """Energy-optimal profile with fixed terminal speed ``vm``: ``u = a tau + b`` (4x4 system of
-    the boundary conditions). ``bounds`` are checked (raise :class:`InfeasibleProfile`), not handled."""
+    the boundary conditions), or, where that would exceed ``bounds.v_max_mps``, the profile with the
+    speed bound as a cruise arc (module docstring). Other bounds are checked (raise
+    :class:`InfeasibleProfile`), not handled."""
     if not (T > 0.0 and D > 0.0):
         raise InfeasibleProfile(f"need T > 0 and D > 0 (got T={T}, D={D})")
     a = (6.0 * T * (v0 + vm) - 12.0 * D) / T**3
     b = (6.0 * D - 2.0 * T * (2.0 * v0 + vm)) / T**2
     prof = _build(t0, T, D, v0, "fixed_speed", [(T, b, a)])
-    if bounds is not None:
-        # v has an interior extremum where u = 0
-        tau_star = -b / a if a != 0.0 else -1.0
-        vs = [v0, vm]
-        if 0.0 < tau_star < T:
-            vs.append(v0 + b * tau_star + a * tau_star**2 / 2.0)
-        us = [b, a * T + b]
-        if min(vs) < bounds.v_min_mps - 1e-9 or max(vs) > bounds.v_max_mps + 1e-9 or min(us) < bounds.u_min_mps2 - 1e-9 or max(us) > bounds.u_max_mps2 + 1e-9:
-            raise InfeasibleProfile(
-                f"fixed-terminal profile v0={v0:.2f} -> vm={vm:.2f} m/s over D={D:.2f} m in T={T:.2f} s leaves the bounds"
-            )
-    return prof
+    if bounds is None:
+        return prof
+    # v has an interior extremum where u = 0
+    tau_star = -b / a if a != 0.0 else -1.0
+    vs = [v0, vm]
+    if 0.0 < tau_star < T:
+        vs.append(v0 + b * tau_star + a * tau_star**2 / 2.0)
+    us = [b, a * T + b]
+    v_hi = max(bounds.v_max_mps, v0)
+
+    def inside(vs, us):
+        return (min(vs) >= bounds.v_min_mps - 1e-9 and max(vs) <= v_hi + 1e-9
+                and min(us) >= bounds.u_min_mps2 - 1e-9 and max(us) <= bounds.u_max_mps2 + 1e-9)
+
+    if inside(vs, us):
+        return prof
+    # the speed bound as a cruise arc (the optimum when the cubic only exceeds v_max); when an
+    # acceleration bound binds too, cruising at the entry speed instead still meets every bound at
+    # and after the earliest arrival of :func:`earliest_fixed` (then feasible, if not optimal)
+    for vb in dict.fromkeys((v_hi, v0)):
+        cruise = _cruise_arcs(v0, vm, D, T, vb)
+        if cruise is not None:
+            us = [arc[1] for arc in cruise] + [arc[1] + arc[2] * arc[0] for arc in cruise]
+            if inside([v0, vm, vb], us):
+                return _build(t0, T, D, v0, "fixed_speed_cruise", cruise)
+    raise InfeasibleProfile(
+        f"fixed-terminal profile v0={v0:.2f} -> vm={vm:.2f} m/s over D={D:.2f} m in T={T:.2f} s leaves the bounds"
+    )
+
+
+def _cruise_arcs(v0: float, vm: float, D: float, T: float, vb: float):
+    """Arcs ``(duration, u_start, jerk)`` of the fixed-terminal optimum with the cruise arc at
+    ``vb`` (module docstring), or None when they do not fit in ``T``."""
+    d1, d2 = max(vb - v0, 0.0), max(vb - vm, 0.0)
+    K = 3.0 * (vb * T - D)
+    den = d1**1.5 + d2**1.5
+    if den <= _TOL or K <= 0.0:
+        return None
+    mu = K / den
+    s1, s2 = mu * math.sqrt(d1), mu * math.sqrt(d2)
+    if s1 + s2 > T + _TOL:
+        return None
+    arcs = []
+    if s1 > _TOL:
+        arcs.append((s1, 2.0 * d1 / s1, -2.0 * d1 / s1**2))
+    arcs.append((max(T - s1 - s2, 0.0), 0.0, 0.0))
+    if s2 > _TOL:
+        arcs.append((s2, 0.0, -2.0 * d2 / s2**2))
+    return arcs
+
+
+def earliest_fixed(v0: float, vm: float, D: float, bounds: PlanBounds, v_cruise: float | None = None) -> float:
+    """Earliest arrival [s] over ``D`` [m] from ``v0`` to a fixed crossing speed ``vm`` [m/s]
+    within the bounds: the cruise-arc profile of :func:`fixed_terminal` whose binding arc has its
+    peak acceleration on the bound (time-optimal among the energy-optimal profiles), cruising at
+    ``v_cruise`` (default ``v_max``; the entry speed for a coordinator that does not let cars
+    arrive earlier than cruising at it). When ``D`` is too short for a cruise, the uniform change of
+    speed ``2 D / (v0 + vm)`` (or the bounds' :func:`min_time`)."""
+    vb = max(bounds.v_max_mps if v_cruise is None else v_cruise, v0)
+    d1, d2 = vb - v0, max(vb - vm, 0.0)
+    mu = max(2.0 * math.sqrt(d1) / bounds.u_max_mps2 if d1 > 0.0 else 0.0,
+             2.0 * math.sqrt(d2) / -bounds.u_min_mps2 if d2 > 0.0 else 0.0)
+    s1, s2 = mu * math.sqrt(d1), mu * math.sqrt(d2)
+    arcs = s1 * (v0 + 2.0 * vb) / 3.0 + s2 * (2.0 * vb + vm) / 3.0  # distance on the two arcs [m]
+    if arcs <= D:
+        return s1 + s2 + (D - arcs) / vb
+    return max(min_time(v0, D, bounds), 2.0 * D / (v0 + vm))
 
 
 def rear_end_violation(prof: Profile, leader_pos, t_end: float, gap_m: float, dt: float = 0.1) -> float:
