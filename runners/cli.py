@@ -103,7 +103,7 @@ def _add_sweep(sub) -> None:
                     "scheduler. Each run directory is written under a temporary name and renamed when finished; "
                     "re-running the same command skips finished runs; a failing run is retried once and then "
                     "recorded as failed while the others go on. Writes DIR/sweep.csv (one row per run), "
-                    "DIR/sweep_summary.csv (mean, sd, 95 %% CI per grid point and control), DIR/sweep.md and "
+                    "DIR/sweep_summary.csv (mean, sd, 95 % CI per grid point and control), DIR/sweep.md and "
                     "the figures DIR/sweep.png and DIR/sweep_seeds.png. Exit status 1 when a run failed.")
     p.add_argument("scenario", type=Path, help="scenario.toml (or the folder holding it)")
     p.add_argument("--seeds", required=True, help="seeds, A:B inclusive or a comma list, e.g. 1:20")
@@ -283,7 +283,10 @@ def _print_summary(s: dict, out: Path) -> None:
     keys = ["control", "vehicles_completed", "throughput_veh_h", "mean_delay_s", "mean_sumo_time_loss_s",
             "collisions", "collisions_geometric", "max_tracking_error_m", "steady_tracking_error_m",
             "max_lateral_dev_m", "min_bumper_gap_m", "vehicles_held", "real_time_factor"]
-    print(json.dumps({k: s.get(k) for k in keys}, indent=1))
+    def short(v):  # six significant digits: 4.44e-15, not 4.440892098500626e-15
+        return float(f"{v:.6g}") if isinstance(v, float) else v
+
+    print(json.dumps({k: short(s.get(k)) for k in keys}, indent=1))
     print(f"run directory: {out}")
 
 
