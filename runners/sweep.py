@@ -74,6 +74,8 @@ class Job:
 
 
 FINGERPRINT = "sweep_fingerprint.json"  # in every run directory a sweep writes
+# fault injection for the tests: "<seed>:<control>" makes the worker running that job die
+FAULT_KILL_WORKER = "NRTRAFFIC_FAULT_KILL_WORKER"
 
 
 def fingerprint(config: dict, control: str, seed: int, duration_s: float | None) -> str:
@@ -191,6 +193,8 @@ def run_job(spec: dict) -> dict:
 
     final = Path(spec["run_dir"])
     final.parent.mkdir(parents=True, exist_ok=True)
+    if os.environ.get(FAULT_KILL_WORKER) == f"{spec['seed']}:{spec['control']}":
+        os._exit(70)  # fault injection (tests): this job's worker process dies
     tmp = final.parent / f".{final.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
     failed = final.parent / f"{final.name}.failed"
     with _ONE_SIMULATION:
@@ -266,8 +270,11 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
     todo = [j for j in jobs if finished(j) is None]
     errors: dict[str, str] = {}
     if todo:
-        # a worker that dies (e.g. killed by the OS) is one failure of that job, not three
-        with dask.config.set({"distributed.scheduler.allowed-failures": 1}):
+        # a worker that dies (e.g. killed by the OS) is one failure of that job, not three; and a
+        # worker holds only the job it runs (saturation 1.0: the others wait at the scheduler), so
+        # that its death counts against that job alone, not against one queued behind it
+        with dask.config.set({"distributed.scheduler.allowed-failures": 1,
+                              "distributed.scheduler.worker-saturation": 1.0}):
             if scheduler:
                 client, cluster = Client(scheduler), None
             else:

@@ -125,3 +125,22 @@ def test_stale_temporary_run_directories_are_removed(tmp_path):
         (d / "summary.json").write_text("{}")
     assert remove_stale(tmp_path) == [stale]
     assert not stale.exists() and live.exists()
+
+
+def test_a_worker_that_dies_fails_only_the_run_it_was_running(tmp_path, monkeypatch):
+    """The worker running seed 1 dies (fault injection) on every attempt: that run is recorded as
+    failed (KilledWorker), every other run of the sweep finishes. With one worker, the next run
+    would be queued on it when it dies unless the worker holds only the run it runs."""
+    from conftest import SCENARIOS
+
+    from runners.sweep import FAULT_KILL_WORKER
+
+    monkeypatch.setenv(FAULT_KILL_WORKER, "1:nrtraffic")
+    out = tmp_path / "out"
+    argv = ["sweep", str(SCENARIOS / "cross4"), "--seeds", "1:4", "--workers", "1", "--out", str(out),
+            "--no-progress", "--set", "scenario.duration_s=8", "--set", "demand.rate_veh_h=300"]
+    assert main(argv) == 1
+    df = pd.read_csv(out / "sweep.csv")
+    assert len(df) == 4
+    failed = df[df["status"] != "ok"]
+    assert failed["seed"].tolist() == [1] and "KilledWorker" in failed["error"].iloc[0]
