@@ -15,7 +15,7 @@ import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, get_type_hints
+from typing import Any, ClassVar, get_type_hints
 
 from nrtraffic.planning.coordinator import CoordinatorSettings
 from nrtraffic.planning.profiles import PlanBounds
@@ -34,10 +34,10 @@ MAX_SEED = 2**31 - 1  # SUMO's --seed is a signed 32-bit integer
 class General:
     """``[scenario]``: name, network and run length."""
 
-    name: str = "unnamed"
-    description: str = ""
+    name: str = "unnamed"  # the scenario's name in summaries and sweep tables
+    description: str = ""  # free text
     network: str = ""  # path of the .net.xml, relative to the scenario file (required)
-    seed: int = 1
+    seed: int = 1  # random seed of arrivals and SUMO (--seed overrides it)
     duration_s: float = 0.0  # simulated time; 0 runs until every vehicle has left
 
     def validate(self) -> None:
@@ -54,9 +54,9 @@ class General:
 class Sumo:
     """``[sumo]``: SUMO's own settings."""
 
-    step_length_s: float = 0.1
+    step_length_s: float = 0.1  # SUMO step [s] (a whole multiple of controller.plant_step_s)
     lateral_resolution_m: float = 0.25  # sublane model: needed for exact moveToXY placement
-    extra_args: tuple[str, ...] = ()
+    extra_args: tuple[str, ...] = ()  # further SUMO options, e.g. ["--time-to-teleport", "-1"]
 
     def validate(self) -> None:
         if not (0 < self.step_length_s <= 1.0):
@@ -77,8 +77,10 @@ class Controller:
     damping: float = 1e-6  # relative damping of the regularised inverse
     predictor_mass_factor: float = 1.0  # predictor mass / plant mass (paper's robustness test: 2)
     a_min_mps2: float = -6.0  # input bounds of the tracker
-    a_max_mps2: float = 3.0
-    steer_max_rad: float = math.pi / 4
+    a_max_mps2: float = 3.0  # [m/s^2]
+    steer_max_rad: float = math.pi / 4  # steering bound of the tracker and the lateral barrier [rad]
+
+    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"predictor": ("euler", "rk4")}
 
     def validate(self) -> None:
         for k in ("plant_step_s", "predictor_step_s", "horizon_s", "alpha", "predictor_mass_factor", "steer_max_rad"):
@@ -86,8 +88,9 @@ class Controller:
                 raise ScenarioError(f"controller.{k} must be > 0")
         if self.predictor == "euler" and self.horizon_s < self.predictor_step_s:
             raise ScenarioError("controller.horizon_s must be at least controller.predictor_step_s (Euler predictor)")
-        if self.predictor not in ("euler", "rk4"):
-            raise ScenarioError(f"controller.predictor must be 'euler' or 'rk4', got {self.predictor!r}")
+        if self.predictor not in self.CHOICES["predictor"]:
+            raise ScenarioError(f"controller.predictor must be one of {', '.join(map(repr, self.CHOICES['predictor']))}, "
+                                f"got {self.predictor!r}")
         if not (self.a_min_mps2 < 0 < self.a_max_mps2):
             raise ScenarioError("controller needs a_min_mps2 < 0 < a_max_mps2")
         if self.damping < 0:
@@ -123,8 +126,8 @@ class Vehicle:
 class Zones:
     """``[zones]``: lengths along each approach's path [m]."""
 
-    control_zone_m: float = 400.0
-    merging_zone_m: float = 30.0
+    control_zone_m: float = 400.0  # length of the control zone before the merging zone [m]
+    merging_zone_m: float = 30.0  # length (plain road) or diameter (junction) of the merging zone [m]
 
     def validate(self) -> None:
         if self.control_zone_m <= 0 or self.merging_zone_m <= 0:
@@ -135,7 +138,7 @@ class Zones:
 class Approach:
     """``[[approaches]]``: one controlled path into the merging zone."""
 
-    name: str = ""
+    name: str = ""  # name of the approach (its movement's key)
     route: tuple[str, ...] = ()  # SUMO edge ids from insertion to the end of the network
     merge_entry_edge: str = ""  # edge holding the merging-zone entry
     merge_entry_pos_m: float = 0.0  # its lane position on that edge [m]
@@ -159,14 +162,14 @@ class Demand:
     ``h = min_headway_s + Exp(mean_headway_s - min_headway_s)``.
     """
 
-    entry_speed_mps: float = 13.4
+    entry_speed_mps: float = 13.4  # speed at which vehicles are inserted and enter the control zone [m/s]
     mean_headway_s: float = 6.0  # 0: no random arrivals (only [[vehicles]])
     rate_veh_h: float = 0.0  # arrivals per approach per hour; > 0 overrides mean_headway_s
     turn_left: float = 0.0  # turning shares at a junction (straight is the rest)
-    turn_right: float = 0.0
-    min_headway_s: float = 1.5
+    turn_right: float = 0.0  # share of right turns
+    min_headway_s: float = 1.5  # shortest headway between arrivals of an approach [s]
     max_vehicles: int = 0  # per approach; 0 = no limit
-    begin_s: float = 0.0
+    begin_s: float = 0.0  # first arrival time [s]
     end_s: float = 0.0  # last departure time; 0 = scenario.duration_s
 
     def validate(self) -> None:
@@ -203,7 +206,7 @@ class Junction:
     incoming lane, and compatible otherwise (planning/conflicts.py).
     """
 
-    id: str = ""
+    id: str = ""  # id of the SUMO junction to control (every incoming edge is an approach)
     lateral_clearance_m: float = 0.5  # [m] band each car may leave its centre line by (barriers.max_lateral_dev_m)
 
     def validate(self) -> None:
@@ -220,8 +223,8 @@ class Barriers:
     ``d0 = 5 m`` between point vehicles is ``min_gap_m = 0.2`` for 4.8 m cars).
     """
 
-    longitudinal: bool = True
-    lateral: bool = True
+    longitudinal: bool = True  # the longitudinal barrier (QP on the acceleration)
+    lateral: bool = True  # the lateral barrier (bisection on the steering)
     min_gap_m: float = 2.0  # bumper-to-bumper gap kept to the vehicle ahead
     max_braking_mps2: float = 3.0  # a_bar of the barrier (k = 1 / (2 a_bar))
     longitudinal_gain: float = 1.0  # kappa(h) = gain * h (paper: 1)
@@ -229,7 +232,7 @@ class Barriers:
     max_lateral_dev_m: float = 0.5  # y_max (paper: 0.5 m)
     max_lateral_accel_mps2: float = 2.0  # a_tilde (k = 1 / (2 a_tilde))
     lateral_gamma: float = 15.0  # kappa(h) = gamma h^3 (paper: 15)
-    bisection_tol_rad: float = 1e-6
+    bisection_tol_rad: float = 1e-6  # tolerance of the lateral barrier's bisection [rad]
     anti_windup: bool = True  # the tracker integrates from the applied (filtered) input
     qp_solver: str = "closed_form"  # or a qpsolvers backend, e.g. "osqp" (same QP, slower)
 
@@ -258,14 +261,14 @@ class ListedVehicle:
     between) then sets its speed every step.
     """
 
-    id: str = ""
-    approach: str = ""
-    depart_s: float = 0.0
-    depart_speed_mps: float = 13.4
+    id: str = ""  # vehicle id
+    approach: str = ""  # its movement (junction) or approach name
+    depart_s: float = 0.0  # departure time [s]
+    depart_speed_mps: float = 13.4  # departure speed [m/s]
     depart_pos_m: float = -1.0  # front bumper on the first route edge; < 0: SUMO's "base"
-    controlled: bool = True
+    controlled: bool = True  # false: SUMO drives it
     entry_heading_offset_rad: float = 0.0  # heading error at admission (paper s. 4.2: 0.35)
-    speed_profile: tuple = ()
+    speed_profile: tuple = ()  # pairs [t_s, v_mps] for a SUMO-driven vehicle's speed
 
     def validate(self) -> None:
         if not self.id or not self.approach:
@@ -283,8 +286,8 @@ class Outputs:
     """``[outputs]``: what the run directory holds."""
 
     trajectory_interval_s: float = 0.1  # log interval of trajectories.parquet (multiple of the SUMO step)
-    sumo_tripinfo: bool = True
-    sumo_collisions: bool = True
+    sumo_tripinfo: bool = True  # SUMO's tripinfo.xml
+    sumo_collisions: bool = True  # SUMO's collisions.xml
     sumo_fcd: bool = False  # SUMO's floating-car data of every vehicle (fcd.xml), e.g. for SUMO-driven leaders
 
     def validate(self) -> None:

@@ -198,6 +198,15 @@ def _on_sigterm(signum, frame) -> None:
     raise Terminated("terminated by SIGTERM")
 
 
+def _add_schema(sub) -> None:
+    p = sub.add_parser("schema", help="the scenario file format as a JSON Schema (or a key reference)",
+                       description="Print the JSON Schema of scenario files, generated from the declaration of the "
+                                   "format (editors that read JSON Schema check and complete scenario.toml with it; "
+                                   "a committed copy is docs/scenario.schema.json).")
+    p.add_argument("--markdown", action="store_true", help="the key reference in markdown instead (docs/scenario_keys.md)")
+    p.add_argument("--write", type=Path, default=None, metavar="FILE", help="write to FILE instead of printing")
+
+
 def main(argv: list[str] | None = None) -> int:
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, _on_sigterm)
@@ -213,6 +222,7 @@ def main(argv: list[str] | None = None) -> int:
     _add_sweep(sub)
     _add_replay(sub)
     _add_bench(sub)
+    _add_schema(sub)
     args = parser.parse_args(argv)
     from nrtraffic.engine import RunFailed
     from nrtraffic.scenario import ScenarioError
@@ -249,6 +259,15 @@ def main(argv: list[str] | None = None) -> int:
             from runners import bench
 
             return bench.main(args)
+        if args.command == "schema":
+            from nrtraffic.scenario_schema import markdown_reference, schema_text
+
+            text = markdown_reference() if args.markdown else schema_text()
+            if args.write is None:
+                print(text, end="")
+            else:
+                args.write.write_text(text)
+            return 0
     except (ScenarioError, NetworkError) as exc:
         print(f"nrtraffic: scenario error: {exc}", file=sys.stderr)
         return 2

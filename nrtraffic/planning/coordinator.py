@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 from nrtraffic.planning.conflicts import CONFLICT
 from nrtraffic.planning.profiles import (InfeasibleProfile, PlanBounds, Profile, earliest_fixed, fixed_terminal,
@@ -77,15 +78,17 @@ class CoordinatorSettings:
     terminal_speed: str = "free"
     qp_solver: str = "daqp"
 
+    # the values each string setting takes (also the scenario file's JSON Schema)
+    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {
+        "earliest": ("entry_speed", "max_speed"), "terminal_speed": ("free", "fixed"), "qp_solver": ("daqp", "osqp")}
+
     def __post_init__(self) -> None:
         if self.rear_end_spacing_m < 0 or self.min_merge_headway_s < 0:
             raise ValueError("coordinator spacing and headway must be >= 0")
-        if self.earliest not in ("entry_speed", "max_speed"):
-            raise ValueError(f"coordinator.earliest must be 'entry_speed' or 'max_speed', got {self.earliest!r}")
-        if self.terminal_speed not in ("free", "fixed"):
-            raise ValueError(f"coordinator.terminal_speed must be 'free' or 'fixed', got {self.terminal_speed!r}")
-        if self.qp_solver not in ("daqp", "osqp"):
-            raise ValueError(f"coordinator.qp_solver must be 'daqp' or 'osqp', got {self.qp_solver!r}")
+        for key, allowed in self.CHOICES.items():
+            if getattr(self, key) not in allowed:
+                raise ValueError(f"coordinator.{key} must be one of {', '.join(map(repr, allowed))}, "
+                                 f"got {getattr(self, key)!r}")
 
 
 @dataclass(frozen=True)
