@@ -12,37 +12,25 @@ from pathlib import Path
 from nrtraffic.scenario import MAX_DURATION_S, MAX_SEED
 
 
-def _duration(text: str) -> float:
-    """``--duration``: simulated seconds, finite, 0 (until every vehicle has left) to a week."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
-    if not (0.0 <= v <= MAX_DURATION_S):  # also refuses nan and inf
-        raise argparse.ArgumentTypeError(f"{text!r}: the simulated time must be between 0 and {MAX_DURATION_S:.0f} s")
-    return v
+def _bounded(parse, lo, hi, name: str, what: str):
+    """An argparse type: ``parse(text)`` within ``[lo, hi]`` (which refuses nan; ``hi`` = inf
+    refuses inf too), else an error saying ``what`` the flag takes."""
+    def check(text: str):
+        try:
+            v = parse(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {name}") from None
+        if not (lo <= v <= hi) or v == float("inf"):
+            raise argparse.ArgumentTypeError(f"{text!r}: {what}")
+        return v
+    return check
 
 
-def _seed(text: str) -> int:
-    """``--seed``: a whole number from 0 to 2^31 - 1."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if not (0 <= v <= MAX_SEED):
-        raise argparse.ArgumentTypeError(f"{text!r}: a seed must be between 0 and {MAX_SEED}")
-    return v
-
-
-def _tolerance(text: str) -> float:
-    """``--rtol`` / ``--atol``: finite and >= 0."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (0.0 <= v < float("inf")):
-        raise argparse.ArgumentTypeError(f"{text!r}: a tolerance must be finite and >= 0")
-    return v
+# --duration: simulated seconds, 0 (until every vehicle has left) to a week
+_duration = _bounded(float, 0.0, MAX_DURATION_S, "a number of seconds",
+                     f"the simulated time must be between 0 and {MAX_DURATION_S:.0f} s")
+_seed = _bounded(int, 0, MAX_SEED, "a whole number", f"a seed must be between 0 and {MAX_SEED}")
+_tolerance = _bounded(float, 0.0, float("inf"), "a number", "a tolerance must be finite and >= 0")
 
 
 def _add_run(sub) -> None:
