@@ -25,7 +25,7 @@ from nrtraffic.control import batch as kb
 from nrtraffic.control.nr_flow import PREDICTORS
 from nrtraffic.demand import shifted_exponential_arrivals
 from nrtraffic.geometry import LanePath, segment_frames, touching_pairs
-from nrtraffic.planning.conflicts import MovementGeometry, classify
+from nrtraffic.planning.conflicts import MovementGeometry, classify, conflict_areas
 from nrtraffic.planning.coordinator import REAR_END_TOL_M, Coordinator, ScheduleInfeasible
 from nrtraffic.planning.profiles import packed_position
 from nrtraffic.results import VEHICLE_COLUMNS, RunResult, TrajectoryWriter
@@ -280,7 +280,9 @@ class Engine:
         return out
 
     def _write_movements(self) -> None:
-        """``movements.json``: each movement's route, zone boundaries and its relation to the others."""
+        """``movements.json``: each movement's route, zone boundaries, its relation to the others and
+        its conflict areas (the stretch of its path, from its merging-zone entry, on which its body
+        can touch the other movement's)."""
         import json
 
         doc = {
@@ -292,6 +294,9 @@ class Engine:
                 for m in self.paths.values()
             },
             "relations": {a: {b: self.relations[(a, b)] for b in self.paths if b != a} for a in self.paths},
+            # on a's path, measured from its merging-zone entry [m]: where its body can touch b's
+            "conflict_areas": [{"movement": a, "with": b, "from_m": lo, "to_m": hi}
+                               for (a, b), (lo, hi) in sorted(getattr(self, "conflict_areas", {}).items())],
         }
         (self.workdir / "movements.json").write_text(json.dumps(doc, indent=1) + "\n")
 
@@ -303,8 +308,11 @@ class Engine:
             ahead = self.params.cg_to_front - 0.5 * self.params.length
             h = m.path.heading_at(m.path.s[sel])
             centre = m.path.xy[sel] + ahead * np.stack([np.cos(h), np.sin(h)], -1)
-            geo.append(MovementGeometry(m.name, m.lanes[0], m.lanes[-1], centre))
-        return classify(geo, self.params.length, self.params.width, self.sc.junction.lateral_clearance_m)
+            geo.append(MovementGeometry(m.name, m.lanes[0], m.lanes[-1], centre, m.path.s[sel] - m.s_merge))
+        p, clearance = self.params, self.sc.junction.lateral_clearance_m
+        relations = classify(geo, p.length, p.width, clearance)
+        self.conflict_areas = conflict_areas(geo, relations, p.length, p.width, clearance)
+        return relations
 
     # ------------------------------------------------------------------ run
     def run(self) -> RunResult:

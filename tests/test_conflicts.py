@@ -92,3 +92,32 @@ def test_same_entry_and_same_exit_lanes():
     assert rel[("a", "b")] == rel[("b", "a")] == SAME_LANE
     assert rel[("a", "c")] == CONFLICT  # merge onto one exit lane, however far apart in the zone
     assert rel[("b", "c")] == COMPATIBLE
+
+
+@pytest.mark.parametrize("clearance", [0.0, 0.25, 0.5])
+def test_conflict_area_of_a_right_angle_crossing_is_the_closed_form(clearance):
+    """Movement a runs along y = 0, b along x = 0 (bodies' centres, sampled every 5 cm). a's body
+    (length L) touches b's swept strip (half-width W'/2, W' = W + 2 clearance) exactly while its
+    centre is within (L + W') / 2 of the crossing."""
+    from nrtraffic.planning.conflicts import conflict_areas
+
+    s = np.arange(-15.0, 15.0 + 1e-9, 0.05)
+    a = MovementGeometry("a", "la", "xa", np.c_[s, np.zeros_like(s)], s + 15.0)
+    b = MovementGeometry("b", "lb", "xb", np.c_[np.zeros_like(s), s], s + 15.0)
+    rel = classify([a, b], L, W, clearance)
+    assert rel[("a", "b")] == CONFLICT
+    areas = conflict_areas([a, b], rel, L, W, clearance)
+    half = (L + W + 2 * clearance) / 2.0
+    for key in (("a", "b"), ("b", "a")):
+        lo, hi = areas[key]
+        assert lo == pytest.approx(15.0 - half, abs=0.051) and hi == pytest.approx(15.0 + half, abs=0.051)
+
+
+def test_compatible_movements_have_no_conflict_area():
+    from nrtraffic.planning.conflicts import conflict_areas
+
+    s = np.arange(-15.0, 15.0, 0.05)
+    a = MovementGeometry("a", "la", "xa", np.c_[s, np.zeros_like(s)], s)
+    b = MovementGeometry("b", "lb", "xb", np.c_[s, np.full_like(s, 5.0)], s)  # parallel, 5 m apart
+    rel = classify([a, b], L, W, 0.25)
+    assert rel[("a", "b")] == COMPATIBLE and conflict_areas([a, b], rel, L, W, 0.25) == {}

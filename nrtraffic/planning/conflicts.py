@@ -37,6 +37,7 @@ class MovementGeometry:
     entry_lane: str
     exit_lane: str
     zone_points: np.ndarray  # (n, 2)
+    zone_s: np.ndarray | None = None  # (n,) path position of each point [m] (for conflict areas)
 
 
 def min_distance(a: np.ndarray, b: np.ndarray) -> float:
@@ -116,3 +117,46 @@ def classify(movements: list[MovementGeometry], length_m: float, width_m: float,
                 rel = COMPATIBLE
             out[(a.name, b.name)] = out[(b.name, a.name)] = rel
     return out
+
+
+def conflict_areas(movements: list[MovementGeometry], relations: dict, length_m: float, width_m: float,
+                   lateral_clearance_m: float) -> dict[tuple[str, str], tuple[float, float]]:
+    """For every ordered pair ``(a, b)`` of conflicting movements whose bodies can touch, the
+    conflict area on ``a``'s path: the stretch ``[s_in, s_out]`` of ``a``'s positions (its
+    ``zone_s``) at which its body, widened by the clearance as in :func:`classify`, touches a body
+    anywhere on ``b``'s path inside the zone. ``a`` occupies the area from reaching ``s_in`` until
+    leaving ``s_out``."""
+    width = width_m + 2.0 * lateral_clearance_m
+    by_name = {m.name: m for m in movements}
+    out = {}
+    for (a, b), rel in relations.items():
+        if rel != CONFLICT:
+            continue
+        ma, mb = by_name[a], by_name[b]
+        if ma.zone_s is None or len(ma.zone_points) == 0 or len(mb.zone_points) == 0:
+            continue
+        i0, i1 = _touch_span(np.ascontiguousarray(ma.zone_points), headings(ma.zone_points),
+                             np.ascontiguousarray(mb.zone_points), headings(mb.zone_points), length_m, width)
+        if i0 >= 0:
+            out[(a, b)] = (float(ma.zone_s[i0]), float(ma.zone_s[i1]))
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def _touch_span(a, ha, b, hb, length, width):
+    """First and last index of ``a``'s points whose rectangle touches one at any of ``b``'s points
+    ((-1, -1) when none does)."""
+    r2 = length * length + width * width
+    first = -1
+    last = -1
+    for i in range(a.shape[0]):
+        for j in range(b.shape[0]):
+            dx = b[j, 0] - a[i, 0]
+            dy = b[j, 1] - a[i, 1]
+            if dx * dx + dy * dy <= r2 and rectangles_touch(a[i, 0], a[i, 1], ha[i], b[j, 0], b[j, 1], hb[j],
+                                                             length, width):
+                if first < 0:
+                    first = i
+                last = i
+                break
+    return first, last
