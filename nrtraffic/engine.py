@@ -351,7 +351,8 @@ class Engine:
                 self.paths = self._paths(self.sumo)
                 self.relations = self._relations()
                 self._write_movements()
-                self.coord = Coordinator(self.sc.coordinator, self.sc.planning, self.relations)
+                self.coord = Coordinator(self.sc.coordinator, self.sc.planning, self.relations,
+                                         areas=self.conflict_areas)
                 self._loop()
         except (Exception, KeyboardInterrupt) as exc:  # keep what was finished
             error = exc

@@ -230,3 +230,34 @@ def test_an_unhindered_vehicle_loses_no_more_than_physics_requires(movement, tmp
     delay_min = t_phys - (D + S) / v0
     assert delay_min - 0.05 <= v["delay_s"] <= delay_min + 0.5, (v["delay_s"], delay_min)
     assert res.summary["collisions"] == 0 and res.summary["max_lateral_dev_m"] < 0.5
+
+
+def test_conflict_points_reserve_the_areas_not_the_zone():
+    """Movements A and B cross: A's conflict area is [10, 20] m past its zone entry, B's [12, 22] m.
+    Everyone crosses at 10 m/s, 1 s margin. b1 (B) waits only until a1 (A) has left the shared area
+    plus the margin, not until a1 has left the whole 30 m zone (the zone model)."""
+    rel = {("A", "B"): CONFLICT, ("B", "A"): CONFLICT}
+    areas = {("A", "B"): (10.0, 20.0), ("B", "A"): (12.0, 22.0)}
+    bounds = PlanBounds(v_min_mps=1.0, v_max_mps=20.0, u_min_mps2=-3.0, u_max_mps2=2.5)
+    settings = CoordinatorSettings(rear_end_spacing_m=12.0, terminal_speed="fixed", conflict_model="conflict_points",
+                                   conflict_margin_s=1.0)
+    c = Coordinator(settings, bounds, rel, areas=areas)
+    v, D, S = 10.0, 400.0, 30.0
+    a1 = c.schedule("a1", "lane_A", 0.0, v, D, "A", S, v_limit=v)
+    b1 = c.schedule("b1", "lane_B", 0.5, v, D, "B", S, v_limit=v)
+    assert a1.t_merge == pytest.approx(40.0) and a1.binding == "earliest"
+    # a1 holds A's area over [41, 42] s; b1 enters B's area 1.2 s after its merge time
+    assert b1.t_merge == pytest.approx(42.0 + 1.0 - 1.2) and b1.binding == "conflict" and b1.predecessor == "a1"
+    zone = Coordinator(CoordinatorSettings(rear_end_spacing_m=12.0, terminal_speed="fixed"), bounds, rel)
+    zone.schedule("a1", "lane_A", 0.0, v, D, "A", S, v_limit=v)
+    assert zone.schedule("b1", "lane_B", 0.5, v, D, "B", S, v_limit=v).t_merge == pytest.approx(43.0)
+    # a later A vehicle on another lane is kept out of b1's occupancy [43, 44] s of the area
+    a2 = c.schedule("a2", "lane_A2", 1.0, v, D, "A", S, v_limit=v)
+    assert a2.t_merge == pytest.approx(44.0 + 1.0 - 1.0) and a2.predecessor == "b1"
+    # a gap between reservations is used: a3 (A) reserved [51, 52] s; b3 (B), scheduled after it,
+    # is pushed past a2's [45, 46] s only, and crosses before a3
+    a3 = c.schedule("a3", "lane_A3", 10.0, v, D, "A", S, v_limit=v)
+    assert a3.t_merge == pytest.approx(50.0) and a3.binding == "earliest"
+    b3 = c.schedule("b3", "lane_B3", 5.0, v, D, "B", S, v_limit=v)
+    assert b3.t_merge == pytest.approx(46.0 + 1.0 - 1.2) and b3.predecessor == "a2"
+    assert b3.t_merge + 2.2 + 1.0 <= a3.t_merge + 1.0 + 1e-9  # out of its area a margin before a3 enters

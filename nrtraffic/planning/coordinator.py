@@ -70,6 +70,14 @@ class CoordinatorSettings:
         longer and holds back the next ones more: throughput collapses under load.
     qp_solver : qpsolvers backend of the rear-end constrained profile's QP: ``"daqp"`` (dense
         dual active set, the default: these QPs have at most 81 variables) or ``"osqp"``.
+    conflict_model : ``"zone"`` (the paper's: two conflicting vehicles are never in the merging
+        zone together) or ``"conflict_points"``: a vehicle occupies each conflict area on its path
+        (movements.json) from reaching it to leaving it, at its constant crossing speed, and two
+        conflicting vehicles' occupancies of their shared area, each widened by
+        ``conflict_margin_s``, must not overlap; a vehicle takes the earliest merge time at which
+        every area on its path is free of all reservations made before it (gaps between them may
+        be used). Needs ``terminal_speed = "fixed"`` (the crossing speed is then known).
+    conflict_margin_s : safety time added before and after each occupancy of a conflict area [s].
     """
 
     rear_end_spacing_m: float = 10.0
@@ -77,10 +85,13 @@ class CoordinatorSettings:
     earliest: str = "entry_speed"
     terminal_speed: str = "free"
     qp_solver: str = "daqp"
+    conflict_model: str = "zone"
+    conflict_margin_s: float = 1.0
 
     # the values each string setting takes (also the scenario file's JSON Schema)
     CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {
-        "earliest": ("entry_speed", "max_speed"), "terminal_speed": ("free", "fixed"), "qp_solver": ("daqp", "osqp")}
+        "earliest": ("entry_speed", "max_speed"), "terminal_speed": ("free", "fixed"), "qp_solver": ("daqp", "osqp"),
+        "conflict_model": ("zone", "conflict_points")}
 
     def __post_init__(self) -> None:
         if self.rear_end_spacing_m < 0 or self.min_merge_headway_s < 0:
@@ -89,6 +100,10 @@ class CoordinatorSettings:
             if getattr(self, key) not in allowed:
                 raise ValueError(f"coordinator.{key} must be one of {', '.join(map(repr, allowed))}, "
                                  f"got {getattr(self, key)!r}")
+        if self.conflict_margin_s < 0:
+            raise ValueError("coordinator.conflict_margin_s must be >= 0")
+        if self.conflict_model == "conflict_points" and self.terminal_speed != "fixed":
+            raise ValueError('coordinator.conflict_model = "conflict_points" needs coordinator.terminal_speed = "fixed"')
 
 
 @dataclass(frozen=True)
@@ -115,6 +130,10 @@ class Coordinator:
     settings: CoordinatorSettings
     bounds: PlanBounds
     relations: dict = field(default_factory=dict)  # (movement, movement) -> relation
+    # (movement, other) -> (from, to) [m from the merging-zone entry]: the conflict area on the
+    # movement's path (planning.conflicts.conflict_areas), for conflict_model "conflict_points"
+    areas: dict = field(default_factory=dict)
+    _reserved: list = field(default_factory=list)  # assignments holding conflict-area reservations
     _last_on_lane: dict[str, Assignment] = field(default_factory=dict)
     _last_on_movement: dict[str, Assignment] = field(default_factory=dict)
     qp_wall_s: float = 0.0  # wall time spent in the rear-end QPs [s] (for the benchmarks)
@@ -159,10 +178,16 @@ class Coordinator:
                          prev.t_exit + spacing_t - zone_length_m / v_hi)
             if t_same > t_m:
                 t_m, binding = t_same, "rear_end"
-        # the latest exit of each conflicting movement binds (FIFO: all of them were scheduled earlier)
-        for other, last in self._last_on_movement.items():
-            if self.relations.get((movement, other)) == CONFLICT and last.t_exit > t_m:
-                t_m, binding, pred, relation = last.t_exit, "conflict", last.vehicle_id, "conflict"
+        if self.settings.conflict_model == "conflict_points":
+            v_zone = min(v_limit, b.v_max_mps)  # fixed terminal speed: the crossing speed
+            t_free, blocker = self._first_free(t_m, movement, v_zone, t0)
+            if blocker is not None:
+                t_m, binding, pred, relation = t_free, "conflict", blocker, "conflict"
+        else:
+            # the latest exit of each conflicting movement binds (FIFO: all were scheduled earlier)
+            for other, last in self._last_on_movement.items():
+                if self.relations.get((movement, other)) == CONFLICT and last.t_exit > t_m:
+                    t_m, binding, pred, relation = last.t_exit, "conflict", last.vehicle_id, "conflict"
         prof = self._profile(vehicle_id, t0, v0, D, t_m, v_limit)
         intrusion = float("nan")
         if prev is not None:
@@ -170,10 +195,36 @@ class Coordinator:
         t_exit = t_m + zone_length_m / prof.v_m
         a = Assignment(vehicle_id, lane, t0, t_m, prof, pred, relation, binding, movement, t_exit, intrusion)
         self._last_on_lane[lane] = a
+        if self.settings.conflict_model == "conflict_points":
+            self._reserved = [r for r in self._reserved if r.t_exit + self.settings.conflict_margin_s > t0] + [a]
         prev_m = self._last_on_movement.get(movement)
         if prev_m is None or t_exit > prev_m.t_exit:
             self._last_on_movement[movement] = a
         return a
+
+    def _first_free(self, t_m: float, movement: str, v: float, now: float) -> tuple[float, str | None]:
+        """Earliest merge time from ``t_m`` at which this movement's occupancy of every conflict
+        area on its path (entered at ``t + from / v``, left at ``t + to / v``, crossing at ``v``),
+        widened by the margin, overlaps no reservation's occupancy of the same area; and the
+        vehicle whose reservation pushed it last (None when ``t_m`` was free)."""
+        margin = self.settings.conflict_margin_s
+        blocker = None
+        moved = True
+        while moved:
+            moved = False
+            for r in self._reserved:
+                mine = self.areas.get((movement, r.movement))
+                theirs = self.areas.get((r.movement, movement))
+                if mine is None or theirs is None:
+                    continue
+                v_r = r.profile.v_m
+                r_in, r_out = r.t_merge + theirs[0] / v_r, r.t_merge + theirs[1] / v_r
+                m_in, m_out = t_m + mine[0] / v, t_m + mine[1] / v
+                if m_in < r_out + margin and r_in < m_out + margin:  # overlap: wait until it has left
+                    t_m = r_out + margin - mine[0] / v
+                    blocker = r.vehicle_id
+                    moved = True
+        return t_m, blocker
 
     def _keep_behind(self, prof: Profile, prev: Assignment, t0: float, v0: float, D: float,
                      t_m: float) -> tuple[Profile, float]:
