@@ -46,3 +46,20 @@ def max_or_none(values):
 def min_or_none(values):
     vals = np.asarray([v for v in values if v is not None and np.isfinite(v)], dtype=float)
     return float(vals.min()) if vals.size else None
+
+
+# HCM level of service by control delay per vehicle [s] (REFERENCE.md section 6): upper bounds of
+# A..E; above the last, F
+LOS_SIGNALISED = (10.0, 20.0, 35.0, 55.0, 80.0)
+LOS_UNSIGNALISED = (10.0, 15.0, 25.0, 35.0, 50.0)
+
+
+def level_of_service(delay_s: float, signalised: bool) -> str:
+    """HCM level-of-service letter of a mean delay [s]: the signalised thresholds for a traffic
+    light, the unsignalised (two-way and all-way stop) ones otherwise."""
+    if delay_s is None or not np.isfinite(delay_s):
+        return "n/a"
+    for letter, bound in zip("ABCDE", LOS_SIGNALISED if signalised else LOS_UNSIGNALISED):
+        if delay_s <= bound:
+            return letter
+    return "F"

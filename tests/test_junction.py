@@ -273,3 +273,16 @@ def test_conflict_points_reserve_the_areas_not_the_zone():
     b3 = c.schedule("b3", "lane_B3", 5.0, v, D, "B", S, v_limit=v)
     assert b3.t_merge == pytest.approx(46.0 + 1.0 - 1.2) and b3.predecessor == "a2"
     assert b3.t_merge + 2.2 + 1.0 <= a3.t_merge + 1.0 + 1e-9  # out of its area a margin before a3 enters
+
+
+@pytest.mark.parametrize("delay, signalised, letter", [
+    (0.0, False, "A"), (10.0, False, "A"), (10.01, False, "B"), (15.0, False, "B"), (24.9, False, "C"),
+    (35.0, False, "D"), (49.0, False, "E"), (50.5, False, "F"), (19.9, True, "B"), (20.1, True, "C"),
+    (55.0, True, "D"), (79.0, True, "E"), (81.0, True, "F"),
+])
+def test_level_of_service_thresholds_are_the_hcm_ones(delay, signalised, letter):
+    # REFERENCE.md section 6: signalised A <= 10 < B <= 20 < C <= 35 < D <= 55 < E <= 80 < F;
+    # unsignalised A <= 10 < B <= 15 < C <= 25 < D <= 35 < E <= 50 < F
+    from nrtraffic.metrics import level_of_service
+
+    assert level_of_service(delay, signalised) == letter
