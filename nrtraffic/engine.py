@@ -328,14 +328,9 @@ class Engine:
         try:
             self._movement_table()
             demand = self._demand()
-            listed = {v.id: v for v in self.sc.vehicles}
-            for vid, mv, t, speed, _ in demand:
-                lv = listed.get(vid)
-                self.records[vid] = VehicleRecord(
-                    vid, self.movement_table[mv][0], t, movement=mv, v_free=speed,
-                    controlled=(lv.controlled if lv else True) and self.control,
-                    heading_offset=lv.entry_heading_offset_rad if lv else 0.0,
-                    speed_profile=lv.speed_profile if lv else ())
+            # a vehicle's record is made when SUMO inserts it: memory grows with the vehicles that
+            # entered so far, not with the whole demand of the run
+            self._scheduled = {vid: (mv, t, speed) for vid, mv, t, speed, _ in demand}
             routes = sdir / "routes.rou.xml"
             write_routes(routes, vtype, {k: v[2] for k, v in self.movement_table.items()}, demand)
             o = self.sc.outputs
@@ -397,7 +392,7 @@ class Engine:
                     break
                 t0 = clock()
                 for vid in self.sumo.departed():
-                    rec = self.records.get(vid)
+                    rec = self._record(vid)
                     if rec is None:
                         continue
                     if rec.controlled:
@@ -514,6 +509,19 @@ class Engine:
             setattr(self, name, np.ascontiguousarray(getattr(self, name)[keep]))
 
     # ------------------------------------------------------------------ steps
+    def _record(self, vid: str) -> VehicleRecord | None:
+        """The record of a vehicle SUMO has just inserted (None for one not of the demand)."""
+        if vid not in self._scheduled:
+            return None
+        mv, t, speed = self._scheduled.pop(vid)
+        lv = next((v for v in self.sc.vehicles if v.id == vid), None)
+        rec = self.records[vid] = VehicleRecord(
+            vid, self.movement_table[mv][0], t, movement=mv, v_free=speed,
+            controlled=(lv.controlled if lv else True) and self.control,
+            heading_offset=lv.entry_heading_offset_rad if lv else 0.0,
+            speed_profile=lv.speed_profile if lv else ())
+        return rec
+
     def _try_admit(self, vid: str) -> str:
         """Admit a vehicle whose centre of gravity crossed the control-zone entry: "waiting" (not
         there yet), "admitted", or "held" (no merge time meets the bounds: SUMO stops it at the
@@ -783,7 +791,7 @@ class Engine:
         rows = []
         paths = getattr(self, "paths", {})
         time_loss = self._sumo_time_loss(final)
-        for rec in self.records.values():
+        for rec in sorted(self.records.values(), key=lambda r: r.t_depart):  # in order of departure
             if rec.status == "waiting" or (self.control and not rec.controlled):
                 continue
             ap = paths.get(rec.movement)

@@ -286,3 +286,22 @@ def test_level_of_service_thresholds_are_the_hcm_ones(delay, signalised, letter)
     from nrtraffic.metrics import level_of_service
 
     assert level_of_service(delay, signalised) == letter
+
+
+def test_conflict_point_search_ends_when_rounding_puts_a_pushed_time_on_the_boundary():
+    """Pushed to ``r_out + margin - from / v``, the vehicle's entry ``t + from / v`` can land a
+    rounding error before ``r_out + margin``: that counts as apart, and the search ends."""
+    rel = {("A", "B"): CONFLICT, ("B", "A"): CONFLICT}
+    settings = CoordinatorSettings(rear_end_spacing_m=12.0, terminal_speed="fixed", conflict_model="conflict_points",
+                                   conflict_margin_s=0.7)
+    bounds = PlanBounds(v_min_mps=1.0, v_max_mps=13.89, u_min_mps2=-3.0, u_max_mps2=2.5)
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        areas = {("A", "B"): tuple(sorted(rng.uniform(0.0, 30.0, 2))), ("B", "A"): tuple(sorted(rng.uniform(0.0, 30.0, 2)))}
+        c = Coordinator(settings, bounds, rel, areas=areas)
+        t = 0.0
+        for k in range(6):
+            mv = "AB"[k % 2]
+            t += rng.uniform(0.0, 2.0)
+            a = c.schedule(f"v{k}", f"lane{k}", t, 13.89, 400.0, mv, 30.0, v_limit=rng.choice([6.5, 8.0, 13.89]))
+            assert np.isfinite(a.t_merge)

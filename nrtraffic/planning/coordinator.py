@@ -51,6 +51,9 @@ class ScheduleInfeasible(InfeasibleProfile):
     """The merge time a vehicle must respect cannot be met within the planning bounds."""
 
 
+_EPS_S = 1e-9  # occupancies closer than this [s] count as apart (rounding of the pushed times)
+
+
 @dataclass(frozen=True)
 class CoordinatorSettings:
     """Coordinator settings.
@@ -220,10 +223,12 @@ class Coordinator:
                 v_r = r.profile.v_m
                 r_in, r_out = r.t_merge + theirs[0] / v_r, r.t_merge + theirs[1] / v_r
                 m_in, m_out = t_m + mine[0] / v, t_m + mine[1] / v
-                if m_in < r_out + margin and r_in < m_out + margin:  # overlap: wait until it has left
-                    t_m = r_out + margin - mine[0] / v
-                    blocker = r.vehicle_id
-                    moved = True
+                if m_in < r_out + margin - _EPS_S and r_in < m_out + margin - _EPS_S:  # overlap
+                    later = r_out + margin - mine[0] / v  # wait until it has left
+                    if later > t_m:  # (rounding must not stall the search)
+                        t_m = later
+                        blocker = r.vehicle_id
+                        moved = True
         return t_m, blocker
 
     def _keep_behind(self, prof: Profile, prev: Assignment, t0: float, v0: float, D: float,
