@@ -37,11 +37,11 @@ N_PROFILE_SEG = 81  # packed profile segments (closed forms: at most 3 arcs + cr
 STEADY_AFTER_S = 3.0  # DESIGN.md: steady-state tracking error counts after 3 s under control
 PATH_SPACING_M = 0.25  # sampling of the smoothed lane paths [m]
 LEADER_LOOKAHEAD_M = 200.0  # how far along its path a vehicle looks for its leader [m]
+CHECKPOINT_WALL_S = 10.0  # wall time between checkpoints of the figures (``checkpoint``) [s]
 # parts of the loop timed for ``wall_time_breakdown_s``: the compiled kernel (with the Python that
 # reads its results), SUMO's step (with its collision list), reading and writing SUMO's vehicles,
 # admission (coordinator; its rear-end QPs also as ``qp``), leader search, the own collision check,
 # and trajectory logging
-CHECKPOINT_WALL_S = 10.0  # wall time between checkpoints of the figures (``checkpoint``) [s]
 WALL_PHASES = ("kernel", "sumo_step", "sumo_io", "admission", "qp", "leaders", "collision_check", "logging")
 
 
