@@ -80,23 +80,8 @@ def swept_overlap(a: np.ndarray, b: np.ndarray, length: float, width: float) -> 
     ``b`` can touch anywhere along them (each at any of its sampled positions)."""
     if len(a) == 0 or len(b) == 0:
         return False
-    return bool(_any_touch(np.ascontiguousarray(a), headings(a), np.ascontiguousarray(b), headings(b), length,
-                           width))
-
-
-@njit(cache=True, error_model="numpy")
-def _any_touch(a, ha, b, hb, length, width):
-    """Whether a rectangle at any point of ``a`` touches one at any point of ``b`` (only pairs whose
-    circumscribed circles meet are tested)."""
-    r2 = length * length + width * width
-    for i in range(a.shape[0]):
-        for j in range(b.shape[0]):
-            dx = b[j, 0] - a[i, 0]
-            dy = b[j, 1] - a[i, 1]
-            if dx * dx + dy * dy <= r2 and rectangles_touch(a[i, 0], a[i, 1], ha[i], b[j, 0], b[j, 1], hb[j],
-                                                             length, width):
-                return True
-    return False
+    return _touch_span(np.ascontiguousarray(a), headings(a), np.ascontiguousarray(b), headings(b), length,
+                       width)[0] >= 0
 
 
 def classify(movements: list[MovementGeometry], length_m: float, width_m: float,
