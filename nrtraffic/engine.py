@@ -561,7 +561,6 @@ class Engine:
         rec.predecessor, rec.relation, rec.binding = asg.predecessor, asg.relation, asg.binding
         rec.profile_kind = asg.profile.kind
         rec.plan_intrusion = asg.plan_intrusion_m
-        rec.s_last = s_proj
         hint = int(np.clip(np.searchsorted(mv.path.s, s_proj) - 1, 0, len(mv.path.s) - 2))
         self._append(vid, x0, asg.profile.packed(N_PROFILE_SEG), self.t, s_proj, lat0, mv.path.xy_at(s_proj),
                      self.path_names.index(rec.movement), hint)

@@ -3,7 +3,7 @@
 A :class:`LanePath` maps arc length ``s`` [m] along a vehicle's path to position ``(x, y)`` [m] and
 heading [rad, counter-clockwise from +x], and projects a point back to ``(s, signed lateral offset)``
 (positive to the left of the direction of travel). Pure numpy; the compiled kernels use the packed
-arrays through :func:`path_xy`.
+arrays through :func:`path_point_near`, :func:`project_local` and :func:`segment_frames`.
 """
 
 from __future__ import annotations
@@ -156,28 +156,10 @@ def _catmull_rom(pts: np.ndarray, spacing: float) -> np.ndarray:
 
 
 @njit(cache=True, error_model="numpy")
-def path_point(q, xy, s):
-    """Compiled position ``(x, y)`` [m] at arc length ``q`` [m] of one packed path."""
-    n = s.shape[0]
-    lo = 0
-    hi = n - 2
-    # binary search for the segment i with s[i] <= q < s[i+1]
-    while lo < hi:
-        mid = (lo + hi + 1) // 2
-        if s[mid] <= q:
-            lo = mid
-        else:
-            hi = mid - 1
-    i = lo
-    frac = (q - s[i]) / (s[i + 1] - s[i])
-    return xy[i, 0] + frac * (xy[i + 1, 0] - xy[i, 0]), xy[i, 1] + frac * (xy[i + 1, 1] - xy[i, 1])
-
-
-@njit(cache=True, error_model="numpy")
 def path_point_near(q, xy, s, i):
-    """:func:`path_point` found by walking from segment ``i`` (a nearby segment, e.g. the vehicle's
-    own): the same segment as the binary search (the last ``i`` with ``s[i] <= q``, within the
-    path), in a few steps when ``q`` is close."""
+    """Compiled :meth:`LanePath.xy_at` for one packed path: position ``(x, y)`` [m] at arc length
+    ``q`` [m], the segment found by walking from segment ``i`` (a nearby one, e.g. the vehicle's
+    own; the last ``i`` with ``s[i] <= q``, within the path), in a few steps when ``q`` is close."""
     n = s.shape[0]
     while i < n - 2 and s[i + 1] <= q:
         i += 1
@@ -185,13 +167,6 @@ def path_point_near(q, xy, s, i):
         i -= 1
     frac = (q - s[i]) / (s[i + 1] - s[i])
     return xy[i, 0] + frac * (xy[i + 1, 0] - xy[i, 0]), xy[i, 1] + frac * (xy[i + 1, 1] - xy[i, 1])
-
-
-@njit(cache=True, error_model="numpy")
-def path_xy(s_arr, xy, s, out):
-    """Compiled :meth:`LanePath.xy_at` for one packed path: positions at each ``s_arr[j]``."""
-    for j in range(s_arr.shape[0]):
-        out[j, 0], out[j, 1] = path_point(s_arr[j], xy, s)
 
 
 @njit(cache=True, error_model="numpy")

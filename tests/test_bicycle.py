@@ -119,3 +119,34 @@ def test_invalid_parameters_are_rejected():
         BicycleParams(m=-1.0)
     with pytest.raises(ValueError, match="unknown vehicle preset"):
         preset("nope")
+
+
+def test_kernel_plant_step_is_the_forward_euler_step_of_eq_1():
+    """The batched kernel advances the plant from body rates it shares with the barriers; one plant
+    step of it equals bicycle.euler_step with the input the kernel applied (reported in OUT_A/OUT_D),
+    in a turn (curved reference) where steering, lateral and yaw dynamics all act."""
+    from nrtraffic.control import batch as kb
+    from nrtraffic.geometry import LanePath, segment_frames
+    from nrtraffic.vehicle.bicycle import euler_step
+
+    R = 60.0
+    th = np.linspace(0.0, 1.5, 400)
+    path = LanePath.from_points(np.c_[R * np.sin(th), R * (1 - np.cos(th))])
+    x0 = np.array([0.0, 0.05, 8.0, 0.1, 0.02, 0.12])
+    X, U = x0[None].copy(), np.array([[0.3, 0.05]])
+    prof = np.zeros((1, 5, 5))
+    prof[0, :, 0] = np.arange(5) * 1e9
+    prof[0, :, 2] = 8.0
+    cfg = np.zeros(kb.N_CFG)
+    cfg[[kb.CFG_H, kb.CFG_HORIZON, kb.CFG_DT_PRED, kb.CFG_ALPHA, kb.CFG_DAMPING, kb.CFG_STEADY_AFTER,
+         kb.CFG_PREDICTOR]] = (0.005, 0.2, 0.1, 100.0, 1e-6, 3.0, 1.0)
+    out = np.zeros((1, kb.N_OUT))
+    lo, hi = np.array([-6.0, -0.78]), np.array([3.0, 0.78])
+    kb.advance(X, U, 0.0, 1, cfg, p, p, lo, hi, prof, np.zeros(1), np.zeros(1), np.zeros(1, dtype=np.int64),
+               np.array([0, len(path.s)], dtype=np.int64), path.xy, path.s, segment_frames(path.xy, path.s),
+               np.zeros(1, dtype=np.int64), np.full(1, kb.NO_LEADER, dtype=np.int64), np.zeros((1, 6)), kb.new_acc(1),
+               out)
+    ref = x0.copy()
+    euler_step(ref, np.array([out[0, kb.OUT_A], out[0, kb.OUT_D]]), p, 0.005, np.empty(6))
+    assert np.allclose(X[0], ref, rtol=0.0, atol=1e-12)
+    assert not np.allclose(X[0], x0)

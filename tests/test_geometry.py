@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from nrtraffic.geometry import LanePath, path_xy, project_local
+from nrtraffic.geometry import LanePath, path_point_near, project_local
 
 R = 821.24
 
@@ -46,11 +46,11 @@ def test_smoothed_path_passes_through_the_vertices_and_stays_on_the_circle():
     assert np.abs(r - R).max() < 10.0**2 / (8 * R) + 1e-4
 
 
-def test_compiled_path_xy_matches_numpy():
+@pytest.mark.parametrize("start", [0, 1, 2])
+def test_compiled_path_point_matches_numpy_from_any_start_segment(start):
     path = LanePath.from_points([(0, 0), (10, 0), (20, 5), (25, 15)])
     s = np.linspace(0, path.length, 57)
-    out = np.empty((len(s), 2))
-    path_xy(s, path.xy, path.s, out)
+    out = np.array([path_point_near(q, path.xy, path.s, start) for q in s])
     assert np.allclose(out, path.xy_at(s))
 
 

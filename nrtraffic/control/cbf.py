@@ -75,13 +75,6 @@ def _accel_from_rates(x, c, s, vl_dot, vn_dot):
 
 
 @njit(cache=True, error_model="numpy")
-def world_acceleration(x, a, delta, p):
-    """World-frame acceleration [m/s^2] of the centre of gravity under input (a, delta)."""
-    vl_dot, vn_dot, _ = body_rates(x, a, delta, p)
-    return _accel_from_rates(x, math.cos(x[4]), math.sin(x[4]), vl_dot, vn_dot)
-
-
-@njit(cache=True, error_model="numpy")
 def _root(z, c):
     """``sign(z) (sqrt(|z| + c^2) - c)`` and its derivative with respect to ``z``.
 
