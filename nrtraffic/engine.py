@@ -502,6 +502,7 @@ class Engine:
         o[kb.OUT_REFX], o[kb.OUT_REFY] = ref0
         o[kb.OUT_ERR] = math.hypot(x0[0] - ref0[0], x0[1] - ref0[1])
         o[kb.OUT_A], o[kb.OUT_D] = 0.0, 0.0
+        o[kb.OUT_AX], o[kb.OUT_AY] = 0.0, 0.0  # SUMO drove it at constant speed before
 
     def _remove(self, keep: np.ndarray) -> None:
         self.batch_ids = [v for v, k in zip(self.batch_ids, keep) if k]

@@ -41,6 +41,13 @@ class LanePath:
         if len(pts) < 2:
             raise ValueError("a lane path needs at least two distinct points")
         if smooth_spacing is not None and len(pts) > 2:
+            # knots that add no shape (where SUMO splits a junction's internal lane on a straight
+            # piece) would pinch the spline between two close vertices into an S-bend
+            pts = _drop_collinear(pts, COLLINEAR_TOL_M)
+        if smooth_spacing is not None and len(pts) == 2:  # a straight: sampled like a smoothed path
+            n = max(1, int(np.ceil(np.hypot(*(pts[1] - pts[0])) / smooth_spacing)))
+            pts = pts[0] + np.linspace(0.0, 1.0, n + 1)[:, None] * (pts[1] - pts[0])
+        elif smooth_spacing is not None and len(pts) > 2:
             # densify first: a spline through a 500 m straight followed by a 2 m junction piece bows
             # the straight by most of a metre; with short segments it only rounds the corners
             pts = _dedupe(_catmull_rom(_densify(pts, SMOOTH_MAX_SEGMENT_M), smooth_spacing), min_spacing)
@@ -99,6 +106,27 @@ class LanePath:
 
 
 SMOOTH_MAX_SEGMENT_M = 2.0  # longest segment the spline sees [m]
+COLLINEAR_TOL_M = 5e-3  # a vertex this close to the chord of its neighbours adds no shape [m]
+
+
+def _drop_collinear(pts: np.ndarray, tol: float) -> np.ndarray:
+    """Drop interior vertices that lie on the segment between the last kept vertex and the next
+    one (within ``tol`` m of it, and between its ends). SUMO splits a left turn's internal lane
+    where the turn waits for oncoming traffic, 0.18 m after a vertex on a straight piece of the
+    same arc: a spline through every vertex turns two such close knots into an S-bend (curvature
+    -0.25 1/m inside a left turn of +0.12 1/m, which the tracker followed with a steering kick). A
+    genuine arc vertex is far from its neighbours' chord (a 9 m radius sampled every 3 m: 0.13 m)."""
+    keep = [0]
+    for i in range(1, len(pts) - 1):
+        a, b, c = pts[keep[-1]], pts[i], pts[i + 1]
+        d = c - a
+        L2 = float(d @ d)
+        t = float((b - a) @ d) / L2
+        off = abs(d[0] * (b[1] - a[1]) - d[1] * (b[0] - a[0])) / math.sqrt(L2)
+        if not (0.0 < t < 1.0 and off < tol):
+            keep.append(i)
+    keep.append(len(pts) - 1)
+    return pts[keep]
 
 
 def _densify(pts: np.ndarray, max_segment: float) -> np.ndarray:

@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from nrtraffic.geometry import LanePath, path_point_near, project_local
+from nrtraffic.geometry import LanePath, path_point_near, project_local, segment_frames
 
 R = 821.24
 
@@ -68,3 +68,24 @@ def test_smoothing_keeps_long_straights_straight():
     assert np.abs(on_in[:, 0] - 1.6).max() < 1e-3
     on_out = path.xy[path.xy[:, 0] > 10.0]
     assert np.abs(on_out[:, 1] + 1.6).max() < 1e-3
+
+
+def test_a_split_internal_lane_does_not_bend_a_left_turn():
+    """SUMO splits a left turn's internal lane where it waits for oncoming traffic (cross4's
+    ``:C_8_0`` + ``:C_13_0``), 0.18 m after a vertex on a straight piece of the arc. The smoothed
+    path must be the one without that extra knot. With the knot, the spline bent right inside the
+    turn (curvature -0.25 1/m); what is left is the spline's slight overshoot where the straight
+    approach meets the turn's first chord (-0.047 1/m, entering an arc of up to +0.18 1/m)."""
+    approach = [(1.6, -512.8), (1.6, -7.2)]
+    internal_a = [(1.6, -7.2), (1.05, -3.35), (0.9588, -3.1979)]
+    internal_b = [(0.9588, -3.1979), (-0.6, -0.6), (-3.35, 1.05), (-7.2, 1.6)]
+    exit_ = [(-7.2, 1.6), (-512.8, 1.6)]
+    split = LanePath.from_points(approach + internal_a + internal_b + exit_, smooth_spacing=0.25)
+    whole = LanePath.from_points(approach + internal_a[:2] + internal_b + exit_, smooth_spacing=0.25)
+    assert split.length == pytest.approx(whole.length, abs=1e-9)
+    assert np.abs(split.xy - whole.xy).max() < 1e-9
+    curvature = segment_frames(split.xy, split.s)[:, 2]  # what the lateral barrier reads
+    assert curvature.min() > -0.05 and curvature.max() < 0.2
+    # and the knot itself is not lost where it carries shape: an arc's vertices stay
+    bent = LanePath.from_points(approach + [(1.05, -3.35), (0.9, -3.0)] + internal_b + exit_, smooth_spacing=0.25)
+    assert np.min(np.hypot(*(bent.xy - (0.9, -3.0)).T)) < 1e-9

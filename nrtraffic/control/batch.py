@@ -36,8 +36,8 @@ from nrtraffic.vehicle.bicycle import body_rates_affine
 N_ACC = 15
 
 (OUT_S, OUT_LAT, OUT_REFX, OUT_REFY, OUT_ERR, OUT_A, OUT_D, OUT_LONG_FRAC, OUT_LAT_FRAC, OUT_H_LONG, OUT_H_LAT,
- OUT_CENTER) = range(12)
-N_OUT = 12
+ OUT_CENTER, OUT_AX, OUT_AY) = range(14)
+N_OUT = 14
 
 # settings packed in ``cfg``
 (CFG_H, CFG_HORIZON, CFG_DT_PRED, CFG_ALPHA, CFG_DAMPING, CFG_STEADY_AFTER, CFG_CBF_LONG, CFG_CBF_LAT, CFG_D0,
@@ -84,7 +84,8 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
     EXTERNAL_LEADER; path_frames: :func:`nrtraffic.geometry.segment_frames` of the packed paths, row
     for row; lead_ext (N,6): external leader (px, py, vx, vy, ax, ay) at ``t_start``.
     acc (N, N_ACC): accumulated figures. out (N, N_OUT): holds the vehicle's arc length, lateral
-    deviation and tracking error at ``t_start`` on entry and at the end of the step on return.
+    deviation, tracking error and world acceleration (over its last plant step; what a follower's
+    barrier reads of it as a leader) at ``t_start`` on entry and at the end of the step on return.
     """
     N = X.shape[0]
     h = cfg[CFG_H]
@@ -100,7 +101,6 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
     ref = np.empty(2)
     lead = np.empty(6)
     snap = np.empty((N, 6))
-    zacc = np.zeros((N, 2))
     n_long = np.zeros(N)
     n_lat = np.zeros(N)
     # cos and sin of each vehicle's heading, carried from one plant step to the next
@@ -115,8 +115,8 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
             snap[i, 1] = X[i, 1]
             snap[i, 2] = X[i, 2] * cs[i, 0] - X[i, 3] * cs[i, 1]
             snap[i, 3] = X[i, 2] * cs[i, 1] + X[i, 3] * cs[i, 0]
-            snap[i, 4] = zacc[i, 0]
-            snap[i, 5] = zacc[i, 1]
+            snap[i, 4] = out[i, OUT_AX]
+            snap[i, 5] = out[i, OUT_AY]
         for i in range(N):
             a0 = path_off[path_id[i]]
             a1 = path_off[path_id[i] + 1]
@@ -226,8 +226,8 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
             sp = math.sin(x[4])
             cs[i, 0] = cp
             cs[i, 1] = sp
-            zacc[i, 0] = (x[2] * cp - x[3] * sp - vx0) / h
-            zacc[i, 1] = (x[2] * sp + x[3] * cp - vy0) / h
+            out[i, OUT_AX] = (x[2] * cp - x[3] * sp - vx0) / h
+            out[i, OUT_AY] = (x[2] * sp + x[3] * cp - vy0) / h
             acc[i, ACC_ENERGY] += 0.5 * a * a * h
             acc[i, ACC_FUEL] += fuel_rate(v, a) * h
             acc[i, ACC_STEPS] += 1.0
