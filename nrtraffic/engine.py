@@ -26,7 +26,7 @@ from nrtraffic.control.nr_flow import PREDICTORS
 from nrtraffic.demand import shifted_exponential_arrivals
 from nrtraffic.geometry import LanePath, segment_frames, touching_pairs
 from nrtraffic.planning.conflicts import MovementGeometry, classify, conflict_areas
-from nrtraffic.planning.coordinator import REAR_END_TOL_M, Coordinator, ScheduleInfeasible
+from nrtraffic.planning.coordinator import REAR_END_TOL_M, Coordinator, Request, ScheduleInfeasible
 from nrtraffic.planning.profiles import packed_position
 from nrtraffic.results import VEHICLE_COLUMNS, RunResult, TrajectoryWriter
 from nrtraffic.scenario import Scenario
@@ -124,6 +124,8 @@ class VehicleRecord:
     min_gap: float = math.inf
     s_last: float = math.nan
     t_held: float = 0.0  # time held at the control-zone entry for want of a feasible schedule [s]
+    t_arrive: float = math.nan  # when its centre of gravity crossed the control-zone entry [s] ...
+    s_arrive: float = math.nan  # ... and where on its path it was then [m] (delay is counted from there)
 
 
 class Engine:
@@ -290,7 +292,11 @@ class Engine:
                 m.name: {"approach": m.approach, "turn": m.turn, "route": list(m.route),
                          "control_zone_start_m": m.s_control, "merge_entry_m": m.s_merge, "merge_exit_m": m.s_exit,
                          "zone_length_m": m.s_exit - m.s_merge,
-                         "v_limit_mps": None if not math.isfinite(m.v_limit) else m.v_limit}
+                         "v_limit_mps": None if not math.isfinite(m.v_limit) else m.v_limit,
+                         # the path of its centre of gravity from 10 m before the merging zone to 10 m
+                         # after it, every 0.5 m: [s from the merging-zone entry, x, y] [m]
+                         "zone_path": [[round(float(d), 3), round(float(x), 3), round(float(y), 3)]
+                                       for d, (x, y) in zip(*self._zone_path(m))]}
                 for m in self.paths.values()
             },
             "relations": {a: {b: self.relations[(a, b)] for b in self.paths if b != a} for a in self.paths},
@@ -298,7 +304,15 @@ class Engine:
             "conflict_areas": [{"movement": a, "with": b, "from_m": lo, "to_m": hi}
                                for (a, b), (lo, hi) in sorted(getattr(self, "conflict_areas", {}).items())],
         }
+        if self.junction_xy is not None:
+            doc["merging_zone"] = {"centre_xy": [float(c) for c in self.junction_xy],
+                                   "diameter_m": self.sc.zones.merging_zone_m}
         (self.workdir / "movements.json").write_text(json.dumps(doc, indent=1) + "\n")
+
+    @staticmethod
+    def _zone_path(m, margin_m: float = 10.0, step_m: float = 0.5):
+        d = np.arange(-margin_m, m.s_exit - m.s_merge + margin_m + 1e-9, step_m)
+        return d, m.path.xy_at(m.s_merge + d)
 
     def _relations(self) -> dict:
         geo = []
@@ -374,6 +388,9 @@ class Engine:
         self._alloc(0)
         approaching: list[str] = []
         scripted: list[str] = []
+        batch = self.sc.coordinator.policy == "batch"
+        self.pending: list[str] = []  # "batch": vehicles in the control zone waiting for their batch to close
+        self.batch_closes = math.inf
         step = 0
         total = self.duration if self.duration > 0 else None
         fmt = ("{l_bar}{bar}| {n:.0f}/{total:.0f} sim s [{elapsed}<{remaining}]" if total
@@ -407,17 +424,21 @@ class Engine:
                 self.snap = self.sumo.snapshot()
                 self._track_uncontrolled(dt)
                 t1 = clock()
-                blocked: set[str] = set()  # lanes whose first waiting vehicle could not be admitted
-                for vid in list(approaching):
-                    rec = self.records[vid]
-                    if rec.approach in blocked:
-                        continue
-                    state = self._try_admit(vid)
-                    if state == "admitted":
-                        approaching.remove(vid)
-                    elif state == "held":
-                        blocked.add(rec.approach)
-                        rec.t_held += dt
+                if batch:
+                    self._admit_batch(approaching, dt)
+                else:
+                    blocked: set[str] = set()  # lanes whose first waiting vehicle could not be admitted
+                    for vid in list(approaching):
+                        rec = self.records[vid]
+                        if rec.approach in blocked:
+                            continue
+                        state = self._try_admit(vid)
+                        if state == "admitted":
+                            approaching.remove(vid)
+                        elif state == "held":
+                            blocked.add(rec.approach)
+                            rec.t_held += dt
+                    self._account_waiting([v for v in approaching if self.records[v].status == "held"], dt)
                 t2 = clock()
                 self._leaders()
                 t3 = clock()
@@ -523,41 +544,117 @@ class Engine:
             speed_profile=lv.speed_profile if lv else ())
         return rec
 
-    def _try_admit(self, vid: str) -> str:
-        """Admit a vehicle whose centre of gravity crossed the control-zone entry: "waiting" (not
-        there yet), "admitted", or "held" (no merge time meets the bounds: SUMO stops it at the
-        entry and admission is tried again every step, so that the lane's FIFO order is kept)."""
+    def _request(self, vid: str, entry_only: bool = False):
+        """What a vehicle whose centre of gravity crossed the control-zone entry asks of the
+        coordinator, from SUMO's view of it now: ``(Request, x0, s, lateral offset)``; None while it
+        has not crossed. ``entry_only``: only whether it crossed (True or None)."""
         rec = self.records[vid]
         mv = self.paths[rec.movement]
         tab = self.snap
         k = tab.row.get(vid)
         if k is None:
-            return "waiting"
+            return None
         lane, pos = tab.lane[k], float(tab.lane_pos[k])
         if lane not in mv.lane_offset:
-            return "waiting"
+            return None
         s_cg = mv.s_of(lane, pos) - self.params.cg_to_front
         if s_cg < mv.s_control - 1e-6:
-            return "waiting"
+            return None
+        if math.isnan(rec.t_arrive):
+            rec.t_arrive, rec.s_arrive = self.t, s_cg
+        if entry_only:
+            return True
         xf, yf, psi = float(tab.x[k]), float(tab.y[k]), float(tab.psi[k])
         v = float(tab.speed[k])
         cg = self.params.cg_to_front
         x0 = np.array([xf - cg * math.cos(psi), yf - cg * math.sin(psi), v, 0.0, psi + rec.heading_offset, 0.0])
         s_proj, lat0 = mv.path.project(x0[:2])
-        D = mv.s_merge - s_proj
+        req = Request(vid, rec.approach, self.t, v, mv.s_merge - s_proj, rec.movement, mv.s_exit - mv.s_merge,
+                      mv.v_limit)
+        return req, x0, s_proj, lat0
+
+    def _try_admit(self, vid: str) -> str:
+        """Admit a vehicle whose centre of gravity crossed the control-zone entry: "waiting" (not
+        there yet), "admitted", or "held" (no merge time meets the bounds: SUMO stops it at the
+        entry and admission is tried again every step, so that the lane's FIFO order is kept)."""
+        got = self._request(vid)
+        if got is None:
+            return "waiting"
+        req = got[0]
         try:
-            if D <= 0.5:
+            if req.D <= 0.5:
                 raise ScheduleInfeasible(f"vehicle {vid} is already at the merging zone")
-            asg = self.coord.schedule(vid, rec.approach, self.t, v, D, rec.movement, mv.s_exit - mv.s_merge,
-                                      mv.v_limit)
+            asg = self.coord.schedule(vid, req.lane, req.t0, req.v0, req.D, req.movement, req.zone_length_m,
+                                      req.v_limit)
         except ScheduleInfeasible:
-            if rec.status != "held":
-                rec.status = "held"
-                self.sumo.hold_speed(vid, 0.0)
+            self._hold(vid)
             return "held"
+        self._admit(got, asg)
+        return "admitted"
+
+    def _admit_batch(self, approaching: list[str], dt: float) -> None:
+        """``policy = "batch"``: vehicles that crossed the control-zone entry wait (driven on by
+        SUMO at their speed) until ``batch_window_s`` after the first of them; then all waiting
+        are scheduled together (:meth:`Coordinator.schedule_batch`) from their state at that
+        moment. Held ones (no feasible merge time) are stopped by SUMO and wait for the next batch,
+        which closes a window after they were held."""
+        for vid in list(approaching):
+            if self._request(vid, entry_only=True):
+                approaching.remove(vid)
+                if not self.pending:
+                    self.batch_closes = self.t + self.sc.coordinator.batch_window_s
+                self.pending.append(vid)
+        for vid in self.pending:
+            if self.records[vid].status == "held":
+                self.records[vid].t_held += dt
+        self._account_waiting(self.pending, dt)
+        if not self.pending or self.t < self.batch_closes - 1e-9:
+            return
+        got = {}
+        for vid in self.pending:
+            g = self._request(vid)
+            if g is not None and g[0].D > 0.5:
+                got[vid] = g
+            else:
+                self._hold(vid)  # at the zone already, or no longer seen on its path
+        results = self.coord.schedule_batch([got[v][0] for v in self.pending if v in got])
+        held = [req.vehicle_id for req, a in results if isinstance(a, ScheduleInfeasible)]
+        for req, a in results:
+            if not isinstance(a, ScheduleInfeasible):
+                self._admit(got[req.vehicle_id], a)
+        for vid in held:
+            self._hold(vid)
+        self.pending = [v for v in self.pending if v in held or v not in got]
+        self.batch_closes = self.t + self.sc.coordinator.batch_window_s if self.pending else math.inf
+
+    def _account_waiting(self, vids: list[str], dt: float) -> None:
+        """Energy and fuel of vehicles in the control zone that SUMO still drives (waiting for their
+        batch, or held), from SUMO's speed and acceleration; carried over when they are admitted."""
+        tab = self.snap
+        for vid in vids:
+            k = tab.row.get(vid)
+            if k is None:
+                continue
+            v, a = float(tab.speed[k]), float(tab.accel[k])
+            acc = self.records[vid].acc
+            acc[kb.ACC_ENERGY] += 0.5 * a * a * dt
+            acc[kb.ACC_FUEL] += metrics.fuel_rate(v, a) * dt
+
+    def _hold(self, vid: str) -> None:
+        rec = self.records[vid]
+        if rec.status != "held":
+            rec.status = "held"
+            self.sumo.hold_speed(vid, 0.0)
+
+    def _admit(self, got, asg) -> None:
+        """Take a scheduled vehicle over: from now on the kernel drives it."""
+        req, x0, s_proj, lat0 = got
+        vid = req.vehicle_id
+        rec = self.records[vid]
+        mv = self.paths[rec.movement]
         rec.status = "controlled"
         self.sumo.take_over(vid)
-        rec.t_enter, rec.v_enter, rec.s_enter = self.t, v, s_proj
+        rec.t_enter, rec.v_enter, rec.s_enter = self.t, req.v0, s_proj
         rec.t_merge_planned, rec.v_merge_planned = asg.t_merge, asg.profile.v_m
         rec.predecessor, rec.relation, rec.binding = asg.predecessor, asg.relation, asg.binding
         rec.profile_kind = asg.profile.kind
@@ -565,7 +662,8 @@ class Engine:
         hint = int(np.clip(np.searchsorted(mv.path.s, s_proj) - 1, 0, len(mv.path.s) - 2))
         self._append(vid, x0, asg.profile.packed(N_PROFILE_SEG), self.t, s_proj, lat0, mv.path.xy_at(s_proj),
                      self.path_names.index(rec.movement), hint)
-        return "admitted"
+        for k in (kb.ACC_ENERGY, kb.ACC_FUEL):  # what it used while SUMO drove it in the control zone
+            self.acc[-1, k] = rec.acc[k]
 
     def _track_uncontrolled(self, dt: float) -> None:
         """Zone crossings and figures of SUMO-driven vehicles (baselines, scripted leaders), from
@@ -797,7 +895,11 @@ class Engine:
             ap = paths.get(rec.movement)
             delay = math.nan
             if ap is not None and not math.isnan(rec.t_exit):
-                delay = float(metrics.free_flow_delay(rec.t_enter, rec.t_exit, ap.s_exit - rec.s_enter, rec.v_free))
+                if math.isnan(rec.t_arrive):  # SUMO-driven: t_enter is when it crossed the entry
+                    t_from, s_from = rec.t_enter, rec.s_enter
+                else:  # controlled: from crossing the entry, before any wait for its batch or a merge time
+                    t_from, s_from = rec.t_arrive, rec.s_arrive
+                delay = float(metrics.free_flow_delay(t_from, rec.t_exit, ap.s_exit - s_from, rec.v_free))
             admitted = not math.isnan(rec.t_enter)
             a = rec.acc.copy() if admitted else np.full(kb.N_ACC, np.nan)
             if not rec.controlled:  # SUMO drove it: no tracking, no barriers

@@ -1,4 +1,5 @@
-"""Merge-time assignment, first-in-first-out by arrival at the control zone (REFERENCE.md s. 3).
+"""Merge-time assignment by arrival at the control zone (REFERENCE.md s. 3 and 6): first in, first
+out, or in batches whose order is chosen (:meth:`Coordinator.schedule_batch`).
 
 For vehicle ``i`` arriving at ``t0`` with speed ``v0``, ``D`` metres before the merging zone::
 
@@ -81,6 +82,16 @@ class CoordinatorSettings:
         every area on its path is free of all reservations made before it (gaps between them may
         be used). Needs ``terminal_speed = "fixed"`` (the crossing speed is then known).
     conflict_margin_s : safety time added before and after each occupancy of a conflict area [s].
+    policy : ``"fifo"`` (each vehicle is scheduled when it enters the control zone, in that order)
+        or ``"batch"``: vehicles entering within ``batch_window_s`` of the first of them are
+        scheduled together when the window closes (they drive on at their speed under SUMO till
+        then), in an order chosen to lose the least time (:meth:`Coordinator.schedule_batch`):
+        same-approach and compatible vehicles then follow each other instead of each paying the
+        cross-flow's clearance. Same-lane order never changes. Needs ``conflict_model =
+        "conflict_points"``.
+    batch_window_s : how long a batch collects vehicles [s].
+    max_passed : how many later arrivals may be scheduled before a vehicle (the starvation cap of
+        "batch"; 0 gives first-in-first-out order within each batch).
     """
 
     rear_end_spacing_m: float = 10.0
@@ -90,11 +101,14 @@ class CoordinatorSettings:
     qp_solver: str = "daqp"
     conflict_model: str = "zone"
     conflict_margin_s: float = 1.0
+    policy: str = "fifo"
+    batch_window_s: float = 3.0
+    max_passed: int = 3
 
     # the values each string setting takes (also the scenario file's JSON Schema)
     CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {
         "earliest": ("entry_speed", "max_speed"), "terminal_speed": ("free", "fixed"), "qp_solver": ("daqp", "osqp"),
-        "conflict_model": ("zone", "conflict_points")}
+        "conflict_model": ("zone", "conflict_points"), "policy": ("fifo", "batch")}
 
     def __post_init__(self) -> None:
         if self.rear_end_spacing_m < 0 or self.min_merge_headway_s < 0:
@@ -105,6 +119,10 @@ class CoordinatorSettings:
                                  f"got {getattr(self, key)!r}")
         if self.conflict_margin_s < 0:
             raise ValueError("coordinator.conflict_margin_s must be >= 0")
+        if self.batch_window_s < 0 or self.max_passed < 0:
+            raise ValueError("coordinator.batch_window_s and coordinator.max_passed must be >= 0")
+        if self.policy == "batch" and self.conflict_model != "conflict_points":
+            raise ValueError('coordinator.policy = "batch" needs coordinator.conflict_model = "conflict_points"')
         if self.conflict_model == "conflict_points" and self.terminal_speed != "fixed":
             raise ValueError('coordinator.conflict_model = "conflict_points" needs coordinator.terminal_speed = "fixed"')
 
@@ -126,9 +144,26 @@ class Assignment:
     plan_intrusion_m: float = float("nan")  # how far the plan enters the gap behind the lane leader's plan [m]
 
 
+@dataclass(frozen=True)
+class Request:
+    """A vehicle asking for a merge time (the arguments of :meth:`Coordinator.schedule`); requests
+    are given to :meth:`Coordinator.schedule_batch` in the order the vehicles entered the control
+    zone."""
+
+    vehicle_id: str
+    lane: str
+    t0: float
+    v0: float
+    D: float
+    movement: str = ""
+    zone_length_m: float = 0.0
+    v_limit: float = float("inf")
+
+
 @dataclass
 class Coordinator:
-    """FIFO merge-time scheduler; call :meth:`schedule` in arrival order."""
+    """Merge-time scheduler: :meth:`schedule` one vehicle at a time in the order they enter the
+    control zone (``policy = "fifo"``), or :meth:`schedule_batch` a batch of them."""
 
     settings: CoordinatorSettings
     bounds: PlanBounds
@@ -139,6 +174,7 @@ class Coordinator:
     _reserved: list = field(default_factory=list)  # assignments holding conflict-area reservations
     _last_on_lane: dict[str, Assignment] = field(default_factory=dict)
     _last_on_movement: dict[str, Assignment] = field(default_factory=dict)
+    _passed: dict[str, int] = field(default_factory=dict)  # times a waiting vehicle has been passed ("batch")
     qp_wall_s: float = 0.0  # wall time spent in the rear-end QPs [s] (for the benchmarks)
 
     def schedule(self, vehicle_id: str, lane: str, t0: float, v0: float, D: float, movement: str = "",
@@ -161,36 +197,7 @@ class Coordinator:
         ------
         ScheduleInfeasible : the required merge time is later than the bounds allow.
         """
-        b = self.bounds
-        t_min = min_time(v0, D, b)
-        if self.settings.earliest == "entry_speed" and v0 > 0.0:
-            t_min = max(t_min, D / min(v0, b.v_max_mps))
-        if v_limit < v0:  # must cross slower than it enters: cruise, then brake on the arc
-            v_cruise = v0 if self.settings.earliest == "entry_speed" else None
-            t_min = earliest_fixed(v0, min(v_limit, b.v_max_mps), D, b, v_cruise)
-        t_m, binding, pred = t0 + t_min, "earliest", None
-        relation = "none"
-        prev = self._last_on_lane.get(lane)
-        if prev is not None:
-            pred, relation = prev.vehicle_id, "same_lane"
-            # delta at the zone entry, at the slower of the two crossing speeds: when this vehicle is
-            # the slower, the gap is delta at the leader's merge time (and grows after it)
-            v_hi = min(v_limit, b.v_max_mps)
-            spacing_t = self.settings.rear_end_spacing_m / min(prev.profile.v_m, v_hi)
-            t_same = max(prev.t_merge + max(self.settings.min_merge_headway_s, spacing_t),
-                         prev.t_exit + spacing_t - zone_length_m / v_hi)
-            if t_same > t_m:
-                t_m, binding = t_same, "rear_end"
-        if self.settings.conflict_model == "conflict_points":
-            v_zone = min(v_limit, b.v_max_mps)  # fixed terminal speed: the crossing speed
-            t_free, blocker = self._first_free(t_m, movement, v_zone, t0)
-            if blocker is not None:
-                t_m, binding, pred, relation = t_free, "conflict", blocker, "conflict"
-        else:
-            # the latest exit of each conflicting movement binds (FIFO: all were scheduled earlier)
-            for other, last in self._last_on_movement.items():
-                if self.relations.get((movement, other)) == CONFLICT and last.t_exit > t_m:
-                    t_m, binding, pred, relation = last.t_exit, "conflict", last.vehicle_id, "conflict"
+        t_m, binding, pred, relation, prev, _ = self._merge_time(lane, t0, v0, D, movement, zone_length_m, v_limit)
         prof = self._profile(vehicle_id, t0, v0, D, t_m, v_limit)
         intrusion = float("nan")
         if prev is not None:
@@ -205,29 +212,137 @@ class Coordinator:
             self._last_on_movement[movement] = a
         return a
 
-    def _first_free(self, t_m: float, movement: str, v: float, now: float) -> tuple[float, str | None]:
+    def _earliest(self, v0: float, D: float, v_limit: float) -> float:
+        """Earliest time [s] from the control-zone entry to the merging zone (see :meth:`schedule`)."""
+        b = self.bounds
+        t_min = min_time(v0, D, b)
+        if self.settings.earliest == "entry_speed" and v0 > 0.0:
+            t_min = max(t_min, D / min(v0, b.v_max_mps))
+        if v_limit < v0:  # must cross slower than it enters: cruise, then brake on the arc
+            v_cruise = v0 if self.settings.earliest == "entry_speed" else None
+            t_min = earliest_fixed(v0, min(v_limit, b.v_max_mps), D, b, v_cruise)
+        return t_min
+
+    def _merge_time(self, lane: str, t0: float, v0: float, D: float, movement: str, zone_length_m: float,
+                    v_limit: float, extra: tuple = ()):
+        """The merge time the rules give, without committing it: ``(t_m, binding, predecessor,
+        relation, lane leader's assignment or None, earliest merge time)``. ``extra``: tentative
+        reservations ``(vehicle_id, movement, t_merge, v_m)`` counted besides the committed ones."""
+        b = self.bounds
+        t_early = t0 + self._earliest(v0, D, v_limit)
+        t_m, binding, pred = t_early, "earliest", None
+        relation = "none"
+        prev = self._last_on_lane.get(lane)
+        if prev is not None:
+            pred, relation = prev.vehicle_id, "same_lane"
+            # delta at the zone entry, at the slower of the two crossing speeds: when this vehicle is
+            # the slower, the gap is delta at the leader's merge time (and grows after it)
+            v_hi = min(v_limit, b.v_max_mps)
+            spacing_t = self.settings.rear_end_spacing_m / min(prev.profile.v_m, v_hi)
+            t_same = max(prev.t_merge + max(self.settings.min_merge_headway_s, spacing_t),
+                         prev.t_exit + spacing_t - zone_length_m / v_hi)
+            if t_same > t_m:
+                t_m, binding = t_same, "rear_end"
+        if self.settings.conflict_model == "conflict_points":
+            v_zone = min(v_limit, b.v_max_mps)  # fixed terminal speed: the crossing speed
+            t_free, blocker = self._first_free(t_m, movement, v_zone, extra)
+            if blocker is not None:
+                t_m, binding, pred, relation = t_free, "conflict", blocker, "conflict"
+        else:
+            # the latest exit of each conflicting movement binds (FIFO: all were scheduled earlier)
+            for other, last in self._last_on_movement.items():
+                if self.relations.get((movement, other)) == CONFLICT and last.t_exit > t_m:
+                    t_m, binding, pred, relation = last.t_exit, "conflict", last.vehicle_id, "conflict"
+        return t_m, binding, pred, relation, prev, t_early
+
+    def schedule_batch(self, requests: list[Request]) -> list[tuple[Request, Assignment | ScheduleInfeasible]]:
+        """Schedule a batch of vehicles (``policy = "batch"``), given in the order they entered the
+        control zone; returns each with its assignment, or the :class:`ScheduleInfeasible` that
+        holds it, in the order they were served.
+
+        Order: among the first waiting vehicle of each lane (same-lane order never changes), serve
+        the one that minimises the time lost by it and by the others' first vehicles if it goes
+        first: its merge time past its earliest, plus, for every other lane's first vehicle, its
+        merge time past its earliest with this one's conflict areas reserved (a one-step
+        look-ahead). A vehicle that lane-mates or cross traffic would hold back little goes before
+        one that would hold many back. Ties go to the earlier arrival. Starvation cap: every time a
+        vehicle is served, each vehicle of the batch that arrived before it is counted as passed;
+        a vehicle passed ``max_passed`` times goes next (its lane's earlier vehicles first). When a
+        vehicle cannot be scheduled, it and the rest of its lane in the batch are held (returned
+        with the exception) and keep their counts for the next batch.
+        """
+        cap = self.settings.max_passed
+        queues: dict[str, list[Request]] = {}
+        for r in requests:
+            queues.setdefault(r.lane, []).append(r)
+        rank = {r.vehicle_id: k for k, r in enumerate(requests)}
+        passed = {r.vehicle_id: self._passed.get(r.vehicle_id, 0) for r in requests}
+        done: list[tuple[Request, Assignment | ScheduleInfeasible]] = []
+        while queues:
+            heads = [q[0] for q in queues.values()]
+            starving = [r for q in queues.values() for r in q if passed[r.vehicle_id] >= cap]
+            if starving:
+                chosen = queues[min(starving, key=lambda r: rank[r.vehicle_id]).lane][0]
+            else:
+                chosen = min(heads, key=lambda c: (self._batch_cost(c, heads), rank[c.vehicle_id]))
+            queue = queues[chosen.lane]
+            try:
+                a = self.schedule(chosen.vehicle_id, chosen.lane, chosen.t0, chosen.v0, chosen.D, chosen.movement,
+                                  chosen.zone_length_m, chosen.v_limit)
+            except ScheduleInfeasible as exc:
+                for r in queue:  # its lane waits behind it, and keeps its counts for the next batch
+                    done.append((r, exc if r is chosen else ScheduleInfeasible(
+                        f"vehicle {r.vehicle_id}: waits behind {chosen.vehicle_id} on its lane")))
+                    self._passed[r.vehicle_id] = passed.pop(r.vehicle_id)
+                del queues[chosen.lane]
+                continue
+            for r in requests:
+                if rank[r.vehicle_id] < rank[chosen.vehicle_id] and r.vehicle_id in passed:
+                    passed[r.vehicle_id] += 1
+            del passed[chosen.vehicle_id]
+            self._passed.pop(chosen.vehicle_id, None)
+            done.append((chosen, a))
+            queue.pop(0)
+            if not queue:
+                del queues[chosen.lane]
+        return done
+
+    def _batch_cost(self, c: Request, heads: list[Request]) -> float:
+        """Time lost [s] by ``c`` and by the other lanes' first vehicles if ``c`` is served next."""
+        t_m, *_, t_early = self._merge_time(c.lane, c.t0, c.v0, c.D, c.movement, c.zone_length_m, c.v_limit)
+        cost = t_m - t_early
+        mine = ((c.vehicle_id, c.movement, t_m, min(c.v_limit, self.bounds.v_max_mps)),)
+        for h in heads:
+            if h is not c:
+                t_h, *_, e_h = self._merge_time(h.lane, h.t0, h.v0, h.D, h.movement, h.zone_length_m, h.v_limit,
+                                                extra=mine)
+                cost += t_h - e_h
+        return cost
+
+    def _first_free(self, t_m: float, movement: str, v: float, extra: tuple = ()) -> tuple[float, str | None]:
         """Earliest merge time from ``t_m`` at which this movement's occupancy of every conflict
         area on its path (entered at ``t + from / v``, left at ``t + to / v``, crossing at ``v``),
         widened by the margin, overlaps no reservation's occupancy of the same area; and the
-        vehicle whose reservation pushed it last (None when ``t_m`` was free)."""
+        vehicle whose reservation pushed it last (None when ``t_m`` was free). ``extra``: tentative
+        reservations ``(vehicle_id, movement, t_merge, v_m)``."""
         margin = self.settings.conflict_margin_s
         blocker = None
+        reserved = [(r.vehicle_id, r.movement, r.t_merge, r.profile.v_m) for r in self._reserved] + list(extra)
         moved = True
         while moved:
             moved = False
-            for r in self._reserved:
-                mine = self.areas.get((movement, r.movement))
-                theirs = self.areas.get((r.movement, movement))
+            for r_id, r_mv, r_tm, v_r in reserved:
+                mine = self.areas.get((movement, r_mv))
+                theirs = self.areas.get((r_mv, movement))
                 if mine is None or theirs is None:
                     continue
-                v_r = r.profile.v_m
-                r_in, r_out = r.t_merge + theirs[0] / v_r, r.t_merge + theirs[1] / v_r
+                r_in, r_out = r_tm + theirs[0] / v_r, r_tm + theirs[1] / v_r
                 m_in, m_out = t_m + mine[0] / v, t_m + mine[1] / v
                 if m_in < r_out + margin - _EPS_S and r_in < m_out + margin - _EPS_S:  # overlap
                     later = r_out + margin - mine[0] / v  # wait until it has left
                     if later > t_m:  # (rounding must not stall the search)
                         t_m = later
-                        blocker = r.vehicle_id
+                        blocker = r_id
                         moved = True
         return t_m, blocker
 
