@@ -125,3 +125,52 @@ def antiwindup_figure(on: pd.DataFrame, off: pd.DataFrame, path: Path) -> Path:
         ax.legend()
         ax.grid(alpha=0.3)
     return _save(fig, path)
+
+
+def conflict_areas(movements: dict, path: Path) -> Path:
+    """The junction's movements with their conflict areas (``movements.json``): one panel per
+    movement, its path through the merging zone (dashed circle) in colour, the stretches on which its body can
+    touch another movement's (its conflict areas) drawn thick, the paths it conflicts with thin."""
+    import math
+
+    import numpy as np
+
+    mvs = movements["movements"]
+    names = list(mvs)
+    areas: dict[str, list] = {}
+    for a in movements.get("conflict_areas", []):
+        areas.setdefault(a["movement"], []).append(a)
+    cols = min(4, len(names))
+    rows = math.ceil(len(names) / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.0 * cols, 3.0 * rows), squeeze=False)
+    paths = {n: np.asarray(mvs[n]["zone_path"]) for n in names}
+    allxy = np.vstack([p[:, 1:] for p in paths.values()])
+    centre = 0.5 * (allxy.min(axis=0) + allxy.max(axis=0))
+    half = 0.5 * (allxy.max(axis=0) - allxy.min(axis=0)).max() + 2.0
+    zone = movements.get("merging_zone")
+    for ax, n in zip(axes.flat, names):
+        for other in names:
+            q = paths[other]
+            ax.plot(q[:, 1], q[:, 2], color="0.85", lw=0.8, zorder=1)
+        for a in areas.get(n, []):
+            q = paths[a["with"]]
+            ax.plot(q[:, 1], q[:, 2], color="0.45", lw=0.8, zorder=2)
+        p_ = paths[n]
+        ax.plot(p_[:, 1], p_[:, 2], color="tab:blue", lw=1.5, zorder=3)
+        ax.annotate("", xy=p_[-1, 1:], xytext=p_[-4, 1:], arrowprops=dict(arrowstyle="->", color="tab:blue"))
+        for a in areas.get(n, []):
+            sel = (p_[:, 0] >= a["from_m"]) & (p_[:, 0] <= a["to_m"])
+            ax.plot(p_[sel, 1], p_[sel, 2], color="tab:red", lw=5, alpha=0.35, solid_capstyle="butt", zorder=4)
+        if zone:
+            ax.add_patch(plt.Circle(tuple(zone["centre_xy"]), zone["diameter_m"] / 2.0, fill=False, ls="--",
+                                    color="0.6", lw=0.8))
+        ax.set_xlim(centre[0] - half, centre[0] + half)
+        ax.set_ylim(centre[1] - half, centre[1] + half)
+        ax.set_aspect("equal")
+        ax.set_xticks([])
+        ax.set_yticks([])
+        ax.set_title(f"{n}: {len(areas.get(n, []))} areas", fontsize=8)
+    for ax in list(axes.flat)[len(names):]:
+        ax.axis("off")
+    fig.suptitle("conflict areas (red) on each movement's path; grey: the movements it conflicts with", fontsize=9)
+    return _save(fig, path)

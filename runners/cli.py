@@ -282,8 +282,19 @@ def _cmd_run(args) -> int:
     out = args.out or Path("runs") / f"{sc.general.name}-seed{seed}"
     _claim(out, sc, seed, args.duration, "nrtraffic", args.force)
     res = run_scenario(sc, out, seed=seed, duration_s=args.duration, progress=not args.no_progress)
+    _movements_figure(out)
     _print_summary(res.summary, out)
     return 0
+
+
+def _movements_figure(out: Path) -> None:
+    """``movements.png``: the junction's movements and conflict areas (single runs only: a sweep's
+    runs share them)."""
+    doc = json.loads((out / "movements.json").read_text())
+    if doc.get("conflict_areas"):
+        from nrtraffic import plots
+
+        plots.conflict_areas(doc, out / "movements.png")
 
 
 def _print_summary(s: dict, out: Path) -> None:

@@ -56,7 +56,7 @@ def resolved_text(sc: scenario_mod.Scenario, seed: int | None, duration_s: float
 
 # what a run writes into its directory (``--force`` removes these, and nothing else)
 RUN_FILES = ("summary.json", "vehicles.csv", "trajectories.parquet", "trajectories.parquet.tmp",
-             "trajectories.partial.arrows", "scenario.resolved.toml", "movements.json", "tripinfo.xml",
+             "trajectories.partial.arrows", "scenario.resolved.toml", "movements.json", "movements.png", "tripinfo.xml",
              "collisions.xml", "fcd.xml", "summary.json.tmp", "vehicles.csv.tmp", "sumo")
 
 
