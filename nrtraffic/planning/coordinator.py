@@ -102,7 +102,7 @@ class CoordinatorSettings:
     conflict_model: str = "zone"
     conflict_margin_s: float = 1.0
     policy: str = "fifo"
-    batch_window_s: float = 3.0
+    batch_window_s: float = 6.0
     max_passed: int = 3
 
     # the values each string setting takes (also the scenario file's JSON Schema)
