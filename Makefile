@@ -40,7 +40,7 @@ GOLDEN := tests/golden/cross4
 golden: $(STAMP)
 	rm -rf $(GOLDEN)
 	NUMBA_CPU_NAME=generic $(BIN)/nrtraffic run sumo_scenarios/cross4/scenario.toml --seed 7 --duration 75 \
-	    --set demand.end_s=25 --set demand.rate_veh_h=600 --set outputs.trajectory_interval_s=0.5 --out $(GOLDEN) --no-progress
+	    --set demand.end_s=25 --set demand.rate_veh_h=600 --set outputs.trajectory_interval_s=0.5 --set outputs.warmup_s=0 --out $(GOLDEN) --no-progress
 	rm -f $(GOLDEN)/movements.png
 
 # numba's on-disk cache does not notice edits in the modules a kernel calls: clear it after editing

@@ -13,6 +13,7 @@ pieces; the maths lives in ``vehicle``, ``control``, ``planning`` and ``geometry
 from __future__ import annotations
 
 import math
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,8 +30,8 @@ from nrtraffic.planning.conflicts import MovementGeometry, classify, conflict_ar
 from nrtraffic.planning.coordinator import REAR_END_TOL_M, Coordinator, Request, ScheduleInfeasible
 from nrtraffic.planning.profiles import packed_position
 from nrtraffic.results import VEHICLE_COLUMNS, RunResult, TrajectoryWriter
-from nrtraffic.scenario import Scenario
-from nrtraffic.sumo.adapter import SumoSession, VehicleType, sumo_version, write_routes
+from nrtraffic.scenario import TURNS, Scenario
+from nrtraffic.sumo.adapter import SumoSession, VehicleType, sumo_version, write_routes, write_sumocfg
 from nrtraffic.sumo.network import junction_movements
 
 N_PROFILE_SEG = 81  # packed profile segments (closed forms: at most 3 arcs + cruise; rear-end QP: 80 + cruise)
@@ -124,6 +125,7 @@ class VehicleRecord:
     min_gap: float = math.inf
     s_last: float = math.nan
     t_held: float = 0.0  # time held at the control-zone entry for want of a feasible schedule [s]
+    depart_delay: float = 0.0  # SUMO's wait to insert it past its desired departure (a backed-up lane) [s]
     t_arrive: float = math.nan  # when its centre of gravity crossed the control-zone entry [s] ...
     s_arrive: float = math.nan  # ... and where on its path it was then [m] (delay is counted from there)
 
@@ -216,25 +218,38 @@ class Engine:
 
     def _demand(self) -> list[tuple]:
         """Departures ``(vehicle_id, movement, depart_s, depart_speed, depart_pos)`` from the run's
-        random generator: per approach, shifted-exponential headways; at a junction each vehicle
-        draws its movement from the turning shares."""
+        random generator: per approach, shifted-exponential headways at the approach's rate (times
+        the scale of each ``[[demand.intervals]]`` period); each vehicle draws its movement from the
+        approach's turning movement counts (``[[demand.flows]]``) or the global turning shares."""
         d = self.sc.demand
         rng = np.random.default_rng(self.seed)
         veh = []
-        headway = d.headway_s
-        if headway > 0:
+        rates = self._approach_rates()
+        if rates:
             end = d.end_s if d.end_s > 0 else (self.duration if self.duration > 0 else math.inf)
             if d.max_vehicles == 0 and not math.isfinite(end):
                 raise ValueError("random demand needs demand.max_vehicles, demand.end_s or scenario.duration_s")
-            approaches: dict[str, list[str]] = {}
-            for name, (appr, _, _) in self.movement_table.items():
-                approaches.setdefault(appr, []).append(name)
-            for appr, names in approaches.items():
-                times = shifted_exponential_arrivals(rng, d.begin_s, end, headway, d.min_headway_s, d.max_vehicles)
-                share = np.array([{"left": d.turn_left, "right": d.turn_right}.get(self.movement_table[n][1],
-                                  1.0 - d.turn_left - d.turn_right) for n in names])
-                if share.sum() <= 0:
-                    share = np.ones(len(names))
+            for appr, (rate, names, share) in rates.items():
+                if rate <= 0:
+                    continue
+                if not d.intervals:
+                    headway = 3600.0 / rate if d.flows else d.headway_s  # (as given: the same draws)
+                    times = shifted_exponential_arrivals(rng, d.begin_s, end, headway, d.min_headway_s,
+                                                         d.max_vehicles)
+                else:
+                    pieces, last = [], d.begin_s
+                    cuts = d.breakpoints(d.begin_s, end)
+                    for b, e in zip(cuts, cuts[1:]):
+                        scale = d.scale_at(b)
+                        if scale > 0:
+                            left = d.max_vehicles - sum(len(x) for x in pieces) if d.max_vehicles else 0
+                            if d.max_vehicles and left <= 0:
+                                break
+                            got = shifted_exponential_arrivals(rng, max(b, last), e, 3600.0 / (rate * scale),
+                                                               d.min_headway_s, left)
+                            pieces.append(got)
+                            last = got[-1] if len(got) else last
+                    times = np.concatenate(pieces) if pieces else np.zeros(0)
                 picks = rng.choice(len(names), size=len(times), p=share / share.sum())
                 veh += [(f"{appr}.{k}", names[j], float(t), d.entry_speed_mps, -1.0)
                         for k, (t, j) in enumerate(zip(times, picks))]
@@ -245,6 +260,55 @@ class Engine:
             veh.append((v.id, mv, v.depart_s, v.depart_speed_mps, v.depart_pos_m))
         veh.sort(key=lambda v: v[2])
         return veh
+
+    def _approach_rates(self) -> dict[str, tuple[float, list[str], np.ndarray]]:
+        """Per approach: its arrival rate [veh/h] (before the intervals' scale), its movements and
+        their shares of it; empty without random demand. Raises ValueError naming the key when
+        ``[[demand.flows]]`` names an approach or a turn the junction does not have."""
+        d = self.sc.demand
+        approaches: dict[str, list[str]] = {}
+        for name, (appr, _, _) in self.movement_table.items():
+            approaches.setdefault(appr, []).append(name)
+        out = {}
+        if d.flows:
+            known = {f.approach for f in d.flows}
+            unknown = sorted(known - set(approaches))
+            if unknown:
+                raise ValueError(f"demand.flows: {', '.join(unknown)} is not an approach of the junction "
+                                 f"({', '.join(approaches)})")
+            for f in d.flows:
+                names = approaches[f.approach]
+                turns = {self.movement_table[n][1]: n for n in names}
+                for key in TURNS:
+                    turn = "uturn" if key == "u_turn" else key
+                    if getattr(f, key) > 0 and turn not in turns:
+                        raise ValueError(f"demand.flows.{f.approach}.{key}: the approach has no such movement "
+                                         f"(it has {', '.join(sorted(turns))})")
+                share = np.array([getattr(f, "u_turn" if self.movement_table[n][1] == "uturn" else
+                                          self.movement_table[n][1], 0.0) for n in names], dtype=float)
+                out[f.approach] = (f.total_veh_h, names, share)
+            return out
+        if d.headway_s <= 0:
+            return {}
+        for appr, names in approaches.items():
+            share = np.array([{"left": d.turn_left, "right": d.turn_right}.get(self.movement_table[n][1],
+                              1.0 - d.turn_left - d.turn_right) for n in names])
+            if share.sum() <= 0:
+                share = np.ones(len(names))
+            out[appr] = (3600.0 / d.headway_s, names, share)
+        return out
+
+    def demand_veh_h(self, begin: float, end: float) -> float:
+        """Mean demand into the junction over ``[begin, end]`` [veh/h]: every approach's rate times
+        the intervals' scale, averaged over the window (not the sampled arrivals)."""
+        rates = self._approach_rates()
+        total = sum(r for r, _, _ in rates.values())
+        d = self.sc.demand
+        lo, hi = max(begin, d.begin_s), min(end, d.end_s if d.end_s > 0 else end)
+        if end <= begin or hi <= lo:
+            return 0.0
+        cuts = d.breakpoints(lo, hi)
+        return total * sum((b - a) * d.scale_at(a) for a, b in zip(cuts, cuts[1:])) / (end - begin)
 
     def _paths(self, sumo: SumoSession) -> dict[str, Movement]:
         out = {}
@@ -347,6 +411,7 @@ class Engine:
             self._scheduled = {vid: (mv, t, speed) for vid, mv, t, speed, _ in demand}
             routes = sdir / "routes.rou.xml"
             write_routes(routes, vtype, {k: v[2] for k, v in self.movement_table.items()}, demand)
+            write_sumocfg(sdir / "run.sumocfg", self.network_path, routes, self.sc.sumo.step_length_s)
             o = self.sc.outputs
             self.sumo = SumoSession(
                 self.network_path, routes, self.sc.sumo.step_length_s, self.seed,
@@ -399,6 +464,8 @@ class Engine:
                    bar_format=fmt)
         clock = time.perf_counter
         wall = self.wall_breakdown
+        plain_progress = bool(self.progress and total and not sys.stderr.isatty())
+        next_report = 0.1 * total if total else math.inf
         next_checkpoint = clock() + CHECKPOINT_WALL_S
         try:
             while True:
@@ -412,6 +479,10 @@ class Engine:
                     rec = self._record(vid)
                     if rec is None:
                         continue
+                    # SUMO's departDelay, less the part that is only the wait for the next step
+                    desired = round(rec.t_depart, 2)  # as the route file gives it
+                    step_wait = math.ceil(desired / dt - 1e-9) * dt - desired
+                    rec.depart_delay = max(0.0, self.sumo.depart_delay(vid) - step_wait)
                     if rec.controlled:
                         rec.status = "approaching"
                         self.sumo.hold_speed(vid, self.sumo.speed(vid))
@@ -468,6 +539,11 @@ class Engine:
                 wall["sumo_step"] += t8 - t7
                 step += 1
                 bar.update(dt)
+                if plain_progress and self.t + dt >= next_report:  # not a terminal: a line every 10 %
+                    print(f"{sc.general.name}: {self.t + dt:.0f}/{total:.0f} sim s "
+                          f"({100 * (self.t + dt) / total:.0f} %), {clock() - self.wall0:.0f} s wall",
+                          file=sys.stderr, flush=True)
+                    next_report += 0.1 * total
                 if self.checkpoint is not None and t8 >= next_checkpoint:
                     if self.traj is not None:
                         self.traj.flush()
@@ -868,16 +944,18 @@ class Engine:
             self.sumo.hold_speed(vid, float(np.interp(t_next, prof[:, 0], prof[:, 1])))
 
     # ------------------------------------------------------------------ results
-    def _sumo_time_loss(self, final: bool = True) -> dict[str, float]:
-        """SUMO's own timeLoss per finished trip (tripinfo.xml) [s]; nothing while SUMO still
-        writes it (``final`` false)."""
+    def _tripinfo(self, final: bool = True) -> dict[str, tuple[float, float]]:
+        """Per finished trip, SUMO's own timeLoss [s] and number of stops (``waitingCount``: times
+        its speed fell below 0.1 m/s) from tripinfo.xml; nothing while SUMO still writes it
+        (``final`` false)."""
         path = self.workdir / "tripinfo.xml"
         if not final or not self.sc.outputs.sumo_tripinfo or not path.is_file():
             return {}
         import xml.etree.ElementTree as ET
 
         try:
-            return {t.get("id"): float(t.get("timeLoss")) for t in ET.parse(path).getroot().iter("tripinfo")}
+            return {t.get("id"): (float(t.get("timeLoss")), float(t.get("waitingCount")))
+                    for t in ET.parse(path).getroot().iter("tripinfo")}
         except ET.ParseError:  # a run that stopped early may leave it unterminated
             return {}
 
@@ -888,7 +966,7 @@ class Engine:
             self.records[vid].acc = self.acc[i].copy()
         rows = []
         paths = getattr(self, "paths", {})
-        time_loss = self._sumo_time_loss(final)
+        trips = self._tripinfo(final)
         for rec in sorted(self.records.values(), key=lambda r: r.t_depart):  # in order of departure
             if rec.status == "waiting" or (self.control and not rec.controlled):
                 continue
@@ -899,7 +977,10 @@ class Engine:
                     t_from, s_from = rec.t_enter, rec.s_enter
                 else:  # controlled: from crossing the entry, before any wait for its batch or a merge time
                     t_from, s_from = rec.t_arrive, rec.s_arrive
-                delay = float(metrics.free_flow_delay(t_from, rec.t_exit, ap.s_exit - s_from, rec.v_free))
+                # plus the wait to enter the network at all, so that a control whose queues back up to
+                # the insertion point is not credited with the demand it kept out
+                delay = float(metrics.free_flow_delay(t_from, rec.t_exit, ap.s_exit - s_from, rec.v_free)) \
+                    + rec.depart_delay
             admitted = not math.isnan(rec.t_enter)
             a = rec.acc.copy() if admitted else np.full(kb.N_ACC, np.nan)
             if not rec.controlled:  # SUMO drove it: no tracking, no barriers
@@ -914,6 +995,8 @@ class Engine:
             rows.append({
                 "vehicle_id": rec.vehicle_id, "approach": rec.approach,
                 "movement": ap.turn if ap is not None else "",
+                "t_arrive_s": rec.t_enter if math.isnan(rec.t_arrive) else rec.t_arrive,
+                "depart_delay_s": rec.depart_delay,
                 "t_enter_s": rec.t_enter, "v_enter_mps": rec.v_enter, "t_merge_planned_s": rec.t_merge_planned,
                 "t_merge_actual_s": rec.t_merge_actual, "t_exit_s": rec.t_exit, "delay_s": delay,
                 "max_tracking_error_m": a[kb.ACC_MAX_ERR], "steady_tracking_error_m": a[kb.ACC_MAX_ERR_STEADY],
@@ -928,14 +1011,28 @@ class Engine:
                 "cbf_long_fallbacks": a[kb.ACC_LONG_FALLBACK], "cbf_lat_fallbacks": a[kb.ACC_LAT_FALLBACK],
                 "min_h_long": fin(a[kb.ACC_MIN_H_LONG]), "min_h_lat": fin(a[kb.ACC_MIN_H_LAT]),
                 "plant_steps": steps if rec.controlled else 0.0,
-                "t_held_s": rec.t_held, "sumo_time_loss_s": time_loss.get(rec.vehicle_id, math.nan),
+                "t_held_s": rec.t_held, "sumo_time_loss_s": trips.get(rec.vehicle_id, (math.nan,))[0],
+                "stops": trips.get(rec.vehicle_id, (math.nan, math.nan))[1],
                 "status": rec.status,
             })
         veh = pd.DataFrame(rows, columns=VEHICLE_COLUMNS)
-        adm = veh[veh["t_enter_s"].notna()]
-        done = veh[veh["t_exit_s"].notna()]
         sim_t = float(self.t)
+        o = self.sc.outputs
+        w0, w1 = o.warmup_s, (o.measure_end_s or sim_t)
+        w1 = min(w1, sim_t)
+        # the measurement window: vehicles that entered the control zone inside it
+        inside = veh["t_arrive_s"].between(w0, w1) if (w0 > 0 or o.measure_end_s) else veh["t_arrive_s"].notna()
+        adm = veh[veh["t_enter_s"].notna() & inside]
+        done = veh[veh["t_exit_s"].notna() & inside]
         steps = adm["plant_steps"].sum()
+        window = max(w1 - w0, 0.0)
+        exits = int(veh["t_exit_s"].between(w0, w1).sum())
+        throughput = exits / window * 3600.0 if window > 0 else None
+        demand = self.demand_veh_h(w0, w1) if window > 0 and hasattr(self, "movement_table") else 0.0
+        # demand not yet in the network at the end: due to depart, but SUMO could not insert it
+        due = [t for vid, (mv, t, _) in getattr(self, "_scheduled", {}).items() if t <= sim_t]
+        mean_delay = metrics.mean_or_none(done["delay_s"])
+        controlled = self.control
         summary = {
             "scenario": self.sc.general.name,
             "control": self.label,
@@ -945,13 +1042,21 @@ class Engine:
             "sim_time_s": sim_t,
             "wall_time_s": wall,
             "real_time_factor": sim_t / wall if wall > 0 else None,
+            "measure_from_s": w0,
+            "measure_to_s": w1,
             "vehicles_spawned": int(sum(r.status != "waiting" for r in self.records.values())),
             "vehicles_admitted": int(len(adm)),
             "vehicles_completed": int(len(done)),
-            "throughput_veh_h": len(done) / sim_t * 3600.0 if sim_t > 0 else None,
-            "mean_delay_s": metrics.mean_or_none(done["delay_s"]),
-            "mean_sumo_time_loss_s": metrics.mean_or_none(veh["sumo_time_loss_s"]),
-            "vehicles_held": int((veh["t_held_s"] > 0).sum()),
+            "throughput_veh_h": throughput,
+            "demand_veh_h": demand or None,
+            "served_share": throughput / demand if demand and throughput is not None else None,
+            "vehicles_waiting_to_enter": len(due),
+            "mean_wait_to_enter_s": float(np.mean([sim_t - t for t in due])) if due else None,
+            "mean_depart_delay_s": metrics.mean_or_none(done["depart_delay_s"]),
+            "mean_delay_s": mean_delay,
+            "los": metrics.level_of_service(mean_delay, self.label == "traffic_light") if mean_delay is not None else None,
+            "mean_sumo_time_loss_s": metrics.mean_or_none(done["sumo_time_loss_s"]),
+            "vehicles_held": int((veh.loc[inside, "t_held_s"] > 0).sum()),
             "plans_rear_end_constrained": int((adm["profile"] == "rear_end").sum()),
             "plans_rear_end_unresolved": int((adm["plan_rear_end_intrusion_m"] > REAR_END_TOL_M).sum()),
             "p95_delay_s": metrics.percentile_or_none(done["delay_s"], 95),
@@ -967,12 +1072,13 @@ class Engine:
             "max_abs_accel_mps2": metrics.max_or_none(adm["max_abs_accel_mps2"]),
             "mean_energy_u2": metrics.mean_or_none(done["energy_u2"]),
             "mean_fuel_ml": metrics.mean_or_none(done["fuel_ml"]),
-            "barriers_longitudinal": bool(self.sc.barriers.longitudinal),
-            "barriers_lateral": bool(self.sc.barriers.lateral),
+            # what only a controlled run has: null for a baseline
+            "barriers_longitudinal": bool(self.sc.barriers.longitudinal) if controlled else None,
+            "barriers_lateral": bool(self.sc.barriers.lateral) if controlled else None,
             "cbf_long_active_frac": float((adm["cbf_long_active_frac"] * adm["plant_steps"]).sum() / steps) if steps else None,
             "cbf_lat_active_frac": float((adm["cbf_lat_active_frac"] * adm["plant_steps"]).sum() / steps) if steps else None,
-            "cbf_long_fallbacks": int(adm["cbf_long_fallbacks"].sum()),
-            "cbf_lat_fallbacks": int(adm["cbf_lat_fallbacks"].sum()),
+            "cbf_long_fallbacks": int(adm["cbf_long_fallbacks"].sum()) if controlled else None,
+            "cbf_lat_fallbacks": int(adm["cbf_lat_fallbacks"].sum()) if controlled else None,
             "wall_time_breakdown_s": {**self.wall_breakdown,
                                       "qp": getattr(getattr(self, "coord", None), "qp_wall_s", 0.0)},
             "nrtraffic_version": __version__,

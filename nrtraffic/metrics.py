@@ -4,8 +4,9 @@ Fuel: Kamal et al.'s polynomial as used by this line of work (REFERENCE.md secti
 ``v`` [m/s] and ``u`` [m/s^2]; the acceleration term counts only for ``u > 0``.
 Energy: ``1/2 int u^2 dt`` of the applied longitudinal acceleration [m^2/s^3].
 Delay: time lost against free flow at the speed the vehicle was sent in with (its departure speed,
-the entry speed of the demand), ``(t_exit - t_enter) - (s_exit - s_enter) / v_free`` [s]; a vehicle
-held at the control-zone entry enters slower, and that lost time counts.
+the entry speed of the demand), ``(t_exit - t_arrive) - (s_exit - s_arrive) / v_free`` [s] from
+crossing the control-zone entry to leaving the merging zone (a wait at the entry counts), plus the
+time SUMO could not insert it because its lane was backed up (SUMO's departDelay).
 """
 
 from __future__ import annotations
@@ -63,3 +64,31 @@ def level_of_service(delay_s: float, signalised: bool) -> str:
         if delay_s <= bound:
             return letter
     return "F"
+
+
+MOVEMENT_COLUMNS = ["approach", "movement", "vehicles", "throughput_veh_h", "mean_delay_s", "p95_delay_s", "los",
+                    "los_thresholds", "stops_per_vehicle", "fuel_ml_per_vehicle"]
+
+
+def movement_table(vehicles, t_from: float, t_to: float, signalised: bool):
+    """One row per (approach, movement) of a run's ``vehicles.csv``: the vehicles that entered the
+    control zone in ``[t_from, t_to]`` and left the merging zone, their throughput [veh/h over the
+    window], mean and 95th-percentile delay [s], the HCM letter of the mean (``los_thresholds``
+    says which table), stops per vehicle (SUMO's waitingCount over the trip) and fuel [mL]."""
+    import pandas as pd
+
+    v = vehicles[vehicles["t_arrive_s"].between(t_from, t_to) & vehicles["t_exit_s"].notna()]
+    hours = max(t_to - t_from, 0.0) / 3600.0
+    rows = []
+    keys = vehicles[["approach", "movement"]].drop_duplicates().sort_values(["approach", "movement"])
+    for appr, mv in keys.itertuples(index=False):
+        g = v[(v["approach"] == appr) & (v["movement"] == mv)]
+        mean = mean_or_none(g["delay_s"])
+        rows.append({"approach": appr, "movement": mv, "vehicles": len(g),
+                     "throughput_veh_h": len(g) / hours if hours > 0 else None, "mean_delay_s": mean,
+                     "p95_delay_s": percentile_or_none(g["delay_s"], 95),
+                     "los": level_of_service(mean, signalised) if mean is not None else "n/a",
+                     "los_thresholds": "signalised" if signalised else "unsignalised",
+                     "stops_per_vehicle": mean_or_none(g["stops"]),
+                     "fuel_ml_per_vehicle": mean_or_none(g["fuel_ml"])})
+    return pd.DataFrame(rows, columns=MOVEMENT_COLUMNS)

@@ -16,14 +16,14 @@ import numpy as np
 import pandas as pd
 
 VEHICLE_COLUMNS = [
-    "vehicle_id", "approach", "movement", "t_enter_s", "v_enter_mps", "t_merge_planned_s", "t_merge_actual_s",
+    "vehicle_id", "approach", "movement", "depart_delay_s", "t_arrive_s", "t_enter_s", "v_enter_mps", "t_merge_planned_s", "t_merge_actual_s",
     "t_exit_s", "delay_s", "max_tracking_error_m", "steady_tracking_error_m", "transient_tracking_error_m",
     "max_lateral_dev_m",
     "min_bumper_gap_m", "energy_u2", "fuel_ml", "predecessor", "relation", "binding", "profile", "plan_rear_end_intrusion_m",
     "v_merge_planned_mps",
     "min_center_distance_m", "max_abs_accel_mps2", "cbf_long_active_frac", "cbf_lat_active_frac",
     "cbf_long_fallbacks", "cbf_lat_fallbacks", "min_h_long", "min_h_lat", "plant_steps", "t_held_s",
-    "sumo_time_loss_s", "status",
+    "sumo_time_loss_s", "stops", "status",
 ]
 
 TRAJECTORY_COLUMNS = {
@@ -171,6 +171,20 @@ def write_vehicles(path: Path, vehicles: pd.DataFrame) -> None:
     tmp = Path(path).with_suffix(".csv.tmp")
     vehicles.to_csv(tmp, index=False, float_format="%.6g")
     tmp.replace(path)
+
+
+def write_movements(path: Path, result: "RunResult") -> pd.DataFrame:
+    """``movements.csv``: the per-movement table of a run (:func:`nrtraffic.metrics.movement_table`)
+    over its measurement window."""
+    from nrtraffic.metrics import movement_table
+
+    s = result.summary
+    table = movement_table(result.vehicles, s.get("measure_from_s") or 0.0, s.get("measure_to_s") or 0.0,
+                           s.get("control") == "traffic_light")
+    tmp = Path(path).with_suffix(".csv.tmp")
+    table.to_csv(tmp, index=False, float_format="%.6g")
+    tmp.replace(path)
+    return table
 
 
 def read_trajectories(run_dir: Path) -> pd.DataFrame:

@@ -154,6 +154,48 @@ class Approach:
             raise ScenarioError(f"approaches.{self.name}.merge_entry_pos_m must be >= 0")
 
 
+TURNS = ("left", "straight", "right", "u_turn")
+
+
+@dataclass(frozen=True)
+class DemandFlow:
+    """``[[demand.flows]]``: the turning movement counts of one approach [veh/h]."""
+
+    approach: str = ""  # the incoming edge of the junction
+    left: float = 0.0  # left turns [veh/h]
+    straight: float = 0.0  # straight on [veh/h]
+    right: float = 0.0  # right turns [veh/h]
+    u_turn: float = 0.0  # U-turns, where the network has them [veh/h]
+
+    @property
+    def total_veh_h(self) -> float:
+        return self.left + self.straight + self.right + self.u_turn
+
+    def validate(self) -> None:
+        if not self.approach:
+            raise ScenarioError("every [[demand.flows]] entry needs an approach (an incoming edge of the junction)")
+        for k in TURNS:
+            if getattr(self, k) < 0:
+                raise ScenarioError(f"demand.flows.{self.approach}.{k} must be >= 0 veh/h, got {getattr(self, k)}")
+
+
+@dataclass(frozen=True)
+class DemandInterval:
+    """``[[demand.intervals]]``: the demand scaled by ``scale`` from ``begin_s`` to ``end_s`` (a
+    peak period); outside every interval the scale is 1."""
+
+    begin_s: float = 0.0  # start of the interval [s]
+    end_s: float = 0.0  # its end [s]
+    scale: float = 1.0  # factor on every flow (and on demand.rate_veh_h) inside it
+
+    def validate(self) -> None:
+        if not (0 <= self.begin_s < self.end_s):
+            raise ScenarioError(f"demand.intervals: need 0 <= begin_s < end_s, got begin_s = {self.begin_s}, "
+                                f"end_s = {self.end_s}")
+        if self.scale < 0:
+            raise ScenarioError(f"demand.intervals [{self.begin_s}, {self.end_s}] s: scale must be >= 0, got {self.scale}")
+
+
 @dataclass(frozen=True)
 class Demand:
     """``[demand]``: arrivals per approach, drawn from the run's seed.
@@ -171,6 +213,8 @@ class Demand:
     max_vehicles: int = 0  # per approach; 0 = no limit
     begin_s: float = 0.0  # first arrival time [s]
     end_s: float = 0.0  # last departure time; 0 = scenario.duration_s
+    flows: tuple[DemandFlow, ...] = ()  # turning movement counts per approach; replace rate_veh_h and the shares
+    intervals: tuple[DemandInterval, ...] = ()  # periods with scaled demand (a peak)
 
     def validate(self) -> None:
         if self.entry_speed_mps <= 0:
@@ -187,6 +231,33 @@ class Demand:
             )
         if not (0 <= self.turn_left <= 1 and 0 <= self.turn_right <= 1 and self.turn_left + self.turn_right <= 1):
             raise ScenarioError("demand.turn_left and demand.turn_right must be shares in [0, 1] summing to <= 1")
+        names = [f.approach for f in self.flows]
+        if len(set(names)) != len(names):
+            raise ScenarioError(f"demand.flows: each approach once, got {names}")
+        ivs = sorted(self.intervals, key=lambda i: i.begin_s)
+        for a, b in zip(ivs, ivs[1:]):
+            if b.begin_s < a.end_s:
+                raise ScenarioError(f"demand.intervals [{a.begin_s}, {a.end_s}] s and [{b.begin_s}, {b.end_s}] s overlap")
+        peak = max([i.scale for i in self.intervals] + [1.0])
+        for f in self.flows:
+            if f.total_veh_h * peak > 0 and 3600.0 / (f.total_veh_h * peak) <= self.min_headway_s:
+                raise ScenarioError(f"demand.flows.{f.approach}: {f.total_veh_h * peak:g} veh/h (at the peak scale "
+                                    f"{peak:g}) needs a mean headway above demand.min_headway_s = {self.min_headway_s} s")
+        if self.rate_veh_h > 0 and not self.flows and 3600.0 / (self.rate_veh_h * peak) <= self.min_headway_s:
+            raise ScenarioError(f"demand.rate_veh_h = {self.rate_veh_h} at the peak scale {peak:g} needs a mean "
+                                f"headway above demand.min_headway_s = {self.min_headway_s} s")
+
+    def scale_at(self, t: float) -> float:
+        """The demand's scale at time ``t`` [s] (1 outside every interval)."""
+        for i in self.intervals:
+            if i.begin_s <= t < i.end_s:
+                return i.scale
+        return 1.0
+
+    def breakpoints(self, begin: float, end: float) -> list[float]:
+        """``begin``, every interval boundary inside ``(begin, end)``, ``end``."""
+        inner = sorted({x for i in self.intervals for x in (i.begin_s, i.end_s) if begin < x < end})
+        return [begin, *inner, end]
 
     @property
     def headway_s(self) -> float:
@@ -289,10 +360,17 @@ class Outputs:
     sumo_tripinfo: bool = True  # SUMO's tripinfo.xml
     sumo_collisions: bool = True  # SUMO's collisions.xml
     sumo_fcd: bool = False  # SUMO's floating-car data of every vehicle (fcd.xml), e.g. for SUMO-driven leaders
+    warmup_s: float = 0.0  # figures count the vehicles that entered the control zone from here on [s]
+    measure_end_s: float = 0.0  # ... and up to here (0: the end of the run) [s]
 
     def validate(self) -> None:
         if not (0 < self.trajectory_interval_s < math.inf):
             raise ScenarioError("outputs.trajectory_interval_s must be > 0")
+        if self.warmup_s < 0 or self.measure_end_s < 0:
+            raise ScenarioError("outputs.warmup_s and outputs.measure_end_s must be >= 0")
+        if self.measure_end_s and self.measure_end_s <= self.warmup_s:
+            raise ScenarioError(f"outputs.measure_end_s ({self.measure_end_s:g} s) must be after outputs.warmup_s "
+                                f"({self.warmup_s:g} s), or 0 for the end of the run")
 
 
 _SECTIONS: dict[str, type] = {
@@ -344,7 +422,7 @@ class Scenario:
                 if key == "vehicle" and f.name == "overrides":
                     d.update({k: float(x) for k, x in v.items()})
                     continue
-                d[f.name] = list(v) if isinstance(v, tuple) else v
+                d[f.name] = _plain(v)
             out[key] = d
         def table(obj):
             return {f.name: _plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
@@ -358,6 +436,8 @@ class Scenario:
 def _plain(v):
     if isinstance(v, tuple):
         return [_plain(x) for x in v]
+    if dataclasses.is_dataclass(v):
+        return {f.name: _plain(getattr(v, f.name)) for f in dataclasses.fields(v)}
     return v
 
 
@@ -389,6 +469,10 @@ def _coerce(section: str, key: str, typ, value):
         return value
     if origin is tuple:
         args = getattr(typ, "__args__", ())
+        if args and dataclasses.is_dataclass(args[0]):  # an array of tables, e.g. [[demand.flows]]
+            if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
+                raise ScenarioError(f"{where} must be an array of tables ([[{where}]]), got {value!r}")
+            return tuple(_section(where, args[0], v) for v in value)
         if not isinstance(value, list) or (args and args[0] is str and not all(isinstance(v, str) for v in value)):
             raise ScenarioError(f"{where} must be a list{' of strings' if args and args[0] is str else ''}, got {value!r}")
         return tuple(tuple(v) if isinstance(v, list) else v for v in value)

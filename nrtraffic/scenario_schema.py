@@ -64,6 +64,8 @@ def _json_type(hint) -> dict:
         return {"type": "string"}
     if origin is tuple:
         args = typing.get_args(hint)
+        if args and dataclasses.is_dataclass(args[0]):
+            return {"type": "array", "items": _table(args[0])}
         return {"type": "array", "items": {"type": "string"}} if args and args[0] is str else {"type": "array"}
     if hint is tuple:
         return {"type": "array"}
@@ -138,6 +140,17 @@ def markdown_reference() -> str:
             if "enum" in p:
                 typ = " \\| ".join(f'"{v}"' for v in p["enum"])
             default = json.dumps(p["default"], default=str) if "default" in p else ""
+            if typ == "array" and "properties" in p.get("items", {}):
+                typ = f"array of tables (`[[{name}.{key}]]`, below)"
             out.append(f"| `{key}` | {typ} | {default} | {p.get('description', '').replace('|', '/')} |")
         out.append("")
+        for key, p in table["properties"].items():
+            sub = p.get("items", {})
+            if p.get("type") == "array" and "properties" in sub:
+                out += [f"### `[[{name}.{key}]]`", "", sub.get("description", ""), "",
+                        "| key | type | default | meaning |", "|---|---|---|---|"]
+                for k, q in sub["properties"].items():
+                    default = json.dumps(q["default"], default=str) if "default" in q else ""
+                    out.append(f"| `{k}` | {q.get('type', '')} | {default} | {q.get('description', '').replace('|', '/')} |")
+                out.append("")
     return "\n".join(out)

@@ -298,13 +298,29 @@ def _movements_figure(out: Path) -> None:
 
 
 def _print_summary(s: dict, out: Path) -> None:
-    keys = ["control", "vehicles_completed", "throughput_veh_h", "mean_delay_s", "mean_sumo_time_loss_s",
-            "collisions", "collisions_geometric", "max_tracking_error_m", "steady_tracking_error_m",
-            "max_lateral_dev_m", "min_bumper_gap_m", "vehicles_held", "real_time_factor"]
-    def short(v):  # six significant digits: 4.44e-15, not 4.440892098500626e-15
-        return float(f"{v:.6g}") if isinstance(v, float) else v
+    """The run's headline figures and its movement table, rounded, on stdout."""
+    keys = ["control", "measure_from_s", "measure_to_s", "vehicles_completed", "throughput_veh_h", "demand_veh_h",
+            "served_share", "vehicles_waiting_to_enter", "mean_delay_s", "los", "p95_delay_s",
+            "mean_sumo_time_loss_s", "collisions", "collisions_geometric", "max_tracking_error_m",
+            "steady_tracking_error_m", "max_lateral_dev_m", "min_bumper_gap_m", "vehicles_held", "real_time_factor"]
 
-    print(json.dumps({k: short(s.get(k)) for k in keys}, indent=1))
+    def short(v):  # four significant digits: 4.44e-15, not 4.440892098500626e-15
+        return f"{v:.4g}" if isinstance(v, float) else ("-" if v is None else str(v))
+
+    width = max(len(k) for k in keys)
+    for k in keys:
+        if k in s:
+            print(f"{k:<{width}}  {short(s[k])}")
+    table = out / "movements.csv"
+    if table.is_file():
+        import pandas as pd
+
+        m = pd.read_csv(table)
+        if len(m):
+            m = m.drop(columns=["los_thresholds"]).round({"throughput_veh_h": 0, "mean_delay_s": 1, "p95_delay_s": 1,
+                                                          "stops_per_vehicle": 2, "fuel_ml_per_vehicle": 1})
+            print(f"\nper movement (movements.csv; LOS by the {'signalised' if s.get('control') == 'traffic_light' else 'unsignalised'} HCM thresholds):")
+            print(m.to_string(index=False, na_rep="-"))
     print(f"run directory: {out}")
 
 

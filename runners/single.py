@@ -9,7 +9,7 @@ from pathlib import Path
 
 from nrtraffic import scenario as scenario_mod
 from nrtraffic.engine import Engine, RunFailed
-from nrtraffic.results import RunResult, TrajectoryWriter, write_summary, write_vehicles
+from nrtraffic.results import RunResult, TrajectoryWriter, write_movements, write_summary, write_vehicles
 from nrtraffic.sumo.network import check_scenario, check_sumo_args
 
 
@@ -55,9 +55,9 @@ def resolved_text(sc: scenario_mod.Scenario, seed: int | None, duration_s: float
 
 
 # what a run writes into its directory (``--force`` removes these, and nothing else)
-RUN_FILES = ("summary.json", "vehicles.csv", "trajectories.parquet", "trajectories.parquet.tmp",
+RUN_FILES = ("summary.json", "vehicles.csv", "movements.csv", "trajectories.parquet", "trajectories.parquet.tmp",
              "trajectories.partial.arrows", "scenario.resolved.toml", "movements.json", "movements.png", "tripinfo.xml",
-             "collisions.xml", "fcd.xml", "summary.json.tmp", "vehicles.csv.tmp", "sumo")
+             "collisions.xml", "fcd.xml", "summary.json.tmp", "vehicles.csv.tmp", "movements.csv.tmp", "sumo")
 
 
 def claim_run_dir(out: Path, sc: scenario_mod.Scenario, seed: int | None, duration_s: float | None, control: str,
@@ -119,6 +119,8 @@ def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: 
 
 
 def _write(result: RunResult, out: Path) -> None:
-    """vehicles.csv, then summary.json (each under a temporary name, renamed when whole)."""
+    """vehicles.csv, movements.csv, then summary.json (each under a temporary name, renamed when
+    whole)."""
     write_vehicles(out / "vehicles.csv", result.vehicles)
+    write_movements(out / "movements.csv", result)
     write_summary(out / "summary.json", result.summary)

@@ -43,7 +43,7 @@ HEADLINE = ("throughput_veh_h", "mean_delay_s", "mean_sumo_time_loss_s", "mean_f
             "collisions_geometric")
 # summary entries that are not figures of the run
 NOT_FIGURES = {"scenario", "seed", "status", "error", "nrtraffic_version", "sumo_version", "control",
-               "junction_type"}
+               "junction_type", "los"}
 
 _ONE_SIMULATION = threading.Lock()  # per worker process, whatever its thread count
 
@@ -370,33 +370,29 @@ def write_tables(df: pd.DataFrame, out: Path) -> None:
         seed_figure(df, out / "sweep_seeds.png")
 
 
-def _approaches(run_dirs) -> int | None:
-    """Number of approaches of the scenario, from a run directory's movements.json."""
-    for d in run_dirs:
-        try:
-            doc = json.loads((Path(d) / "movements.json").read_text())
-            return len({m["approach"] for m in doc["movements"].values()})
-        except (OSError, ValueError, KeyError):
-            continue
-    return None
-
-
 def markdown(summ: pd.DataFrame, df: pd.DataFrame) -> str:
     from nrtraffic.metrics import level_of_service
 
     keys = grid_keys(summ)
     seeds = sorted(df["seed"].unique())
-    per_approach = "demand.rate_veh_h" in keys
-    n_appr = _approaches(df.loc[df["status"] == "ok", "run_dir"]) if per_approach else None
+    served = "served_share_mean" in summ and summ["served_share_mean"].notna().any()
+    waiting = "vehicles_waiting_to_enter_mean" in summ
+    window = ""
+    if "measure_from_s" in df and df["measure_from_s"].notna().any():
+        window = (f" Figures count the vehicles that entered the control zone from "
+                  f"{df['measure_from_s'].min():g} s to the end of the run (warm-up excluded).")
     lines = [f"Mean over seeds {seeds[0]}-{seeds[-1]} ({len(seeds)} seeds) with the 95 % confidence half-width; "
-             "collisions are totals over the runs. LOS: HCM level of service of the mean delay (signalised "
-             "thresholds for the traffic light, unsignalised ones for the others)"
-             + (f"; served: throughput as a share of the demand ({n_appr} approaches x demand.rate_veh_h)"
-                if n_appr else "") + ".", "",
-             "| " + " | ".join(keys + ["control", "runs (failed)", "throughput [veh/h]"] + (["served"] if n_appr else [])
+             "collisions are totals over the runs. Delay includes the wait to enter the network (SUMO's "
+             "departDelay) where the queue backed up to the insertion point. LOS: HCM level of service of the "
+             "mean delay (signalised thresholds for the traffic light, unsignalised ones for the others)"
+             + ("; served: throughput as a share of the demand" if served else "")
+             + ("; not in: demand due by the end that SUMO could not yet insert, per run" if waiting else "")
+             + "." + window, "",
+             "| " + " | ".join(keys + ["control", "runs (failed)", "throughput [veh/h]"] + (["served"] if served else [])
+                               + (["not in"] if waiting else [])
                                + ["delay [s]", "LOS", "SUMO timeLoss [s]", "fuel [mL/veh]",
                                   "collisions: SUMO / own check"]) + " |",
-             "|" + "---|" * (len(keys) + 8 + (1 if n_appr else 0))]
+             "|" + "---|" * (len(keys) + 8 + int(served) + int(waiting))]
 
     def f(r, k, nd=1):
         m, c = r.get(f"{k}_mean", math.nan), r.get(f"{k}_ci95", math.nan)
@@ -409,14 +405,15 @@ def markdown(summ: pd.DataFrame, df: pd.DataFrame) -> str:
         return "n/a" if m != m else f"{round(m * r['runs']):d}"
 
     for _, r in summ.iterrows():
-        served = []
-        if n_appr:
-            demand = float(r["demand.rate_veh_h"]) * n_appr
-            tp = r.get("throughput_veh_h_mean", math.nan)
-            served = ["n/a" if tp != tp else f"{100 * tp / demand:.0f} %"]
+        extra = []
+        if served:
+            sh = r.get("served_share_mean", math.nan)
+            extra.append("n/a" if sh != sh else f"{100 * sh:.0f} %")
+        if waiting:
+            extra.append(f(r, "vehicles_waiting_to_enter", 0))
         delay = r.get("mean_delay_s_mean", math.nan)
         cells = [f"{r[k]}" for k in keys] + [
-            r["control"], f"{r['runs']} ({r['failed']})", f(r, "throughput_veh_h", 0), *served, f(r, "mean_delay_s"),
+            r["control"], f"{r['runs']} ({r['failed']})", f(r, "throughput_veh_h", 0), *extra, f(r, "mean_delay_s"),
             level_of_service(delay, r["control"] == "traffic_light"),
             f(r, "mean_sumo_time_loss_s"), f(r, "mean_fuel_ml"),
             f"{total(r, 'collisions')} / {total(r, 'collisions_geometric')}"]

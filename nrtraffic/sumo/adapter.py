@@ -86,6 +86,20 @@ class VehicleType:
     max_speed_mps: float = 20.0
 
 
+def write_sumocfg(path: Path, network: Path, routes: Path, step_length_s: float) -> None:
+    """A SUMO configuration that opens ``network`` with ``routes`` (``sumo-gui -c path``), paths
+    relative to its own folder."""
+    import os
+
+    def rel(p):
+        return os.path.relpath(Path(p).resolve(), Path(path).resolve().parent)
+
+    Path(path).write_text(
+        '<?xml version="1.0" encoding="UTF-8"?>\n<configuration>\n'
+        f'    <input>\n        <net-file value="{rel(network)}"/>\n        <route-files value="{rel(routes)}"/>\n'
+        f'    </input>\n    <time>\n        <step-length value="{step_length_s:g}"/>\n    </time>\n</configuration>\n')
+
+
 def write_routes(path: Path, vtype: VehicleType, routes: dict[str, tuple[str, ...]], vehicles) -> None:
     """Write a SUMO route file.
 
@@ -220,6 +234,11 @@ class SumoSession:
         for vid in ids:
             sub(vid, self._vars)
         return ids
+
+    def depart_delay(self, vid: str) -> float:
+        """How long SUMO waited to insert a vehicle past its desired departure (its lane was
+        backed up) [s]; SUMO's departDelay."""
+        return float(self.traci.vehicle.getDepartDelay(vid))
 
     def snapshot(self) -> VehicleTable:
         """Lane, lane position, front-bumper pose, speed and acceleration of every vehicle in the

@@ -1,0 +1,174 @@
+"""The engineer's workflow: demand as turning movement counts and peak intervals, the measurement
+window, the movement table, SUMO's wait to insert, and a run directory that opens in sumo-gui."""
+
+import math
+import subprocess
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from nrtraffic import metrics, scenario
+from nrtraffic.engine import Engine
+from nrtraffic.scenario import ScenarioError
+from nrtraffic.sumo.netbuild import sumo_binary
+
+from conftest import SCENARIOS
+
+CROSS4 = SCENARIOS / "cross4" / "scenario.toml"
+FLOWS = ('demand.flows=[{approach="N_in", straight=500.0, left=60.0, right=40.0}, '
+         '{approach="S_in", straight=500.0, left=60.0, right=40.0}, '
+         '{approach="E_in", straight=100.0, left=30.0, right=20.0}, '
+         '{approach="W_in", straight=100.0, left=30.0, right=20.0}]')
+
+
+def _engine(overrides, tmp_path, duration=3600.0, seed=5):
+    sc = scenario.load(CROSS4, overrides)
+    e = Engine(sc, tmp_path, seed=seed, duration_s=duration)
+    e._movement_table()  # reads the network; SUMO is not started
+    return e
+
+
+@pytest.mark.parametrize("override, message", [
+    ('demand.flows=[{approach="N_in", left=-5.0}]', "demand.flows.N_in.left must be >= 0"),
+    ('demand.flows=[{approach="N_in", lefty=5.0}]', "unknown key demand.flows.lefty"),
+    ('demand.flows=[{straight=5.0}]', "needs an approach"),
+    ('demand.flows=[{approach="N_in", straight="many"}]', "demand.flows.straight must be a number"),
+    ("demand.flows=5", "must be an array of tables"),
+    ('demand.flows=[{approach="N_in", straight=100.0}, {approach="N_in", left=5.0}]', "each approach once"),
+    ('demand.flows=[{approach="N_in", straight=3000.0}]', "demand.flows.N_in: 3000 veh/h"),
+    ("demand.intervals=[{begin_s=100.0, end_s=50.0}]", "begin_s < end_s"),
+    ("demand.intervals=[{begin_s=0.0, end_s=50.0, scale=-1.0}]", "scale must be >= 0"),
+    ("demand.intervals=[{begin_s=0.0, end_s=100.0}, {begin_s=50.0, end_s=150.0}]", "overlap"),
+    ("demand.intervals=[{begin_s=0.0, end_s=100.0, scale=10.0}]", "at the peak scale 10"),
+    ("outputs.warmup_s=-1.0", "outputs.warmup_s and outputs.measure_end_s must be >= 0"),
+    ("outputs.measure_end_s=50.0", None),  # valid alone (warm-up 0)
+])
+def test_demand_and_window_keys_are_validated_by_name(override, message):
+    if message is None:
+        scenario.load(CROSS4, [override, "outputs.warmup_s=10.0"])
+        with pytest.raises(ScenarioError, match="must be after outputs.warmup_s"):
+            scenario.load(CROSS4, [override, "outputs.warmup_s=60.0"])
+        return
+    with pytest.raises(ScenarioError, match=message):
+        scenario.load(CROSS4, [override, "demand.rate_veh_h=400.0"])
+
+
+def test_flows_name_approaches_and_turns_the_junction_has(tmp_path):
+    with pytest.raises(ValueError, match="X_in is not an approach of the junction"):
+        _engine(['demand.flows=[{approach="X_in", straight=100.0}]'], tmp_path)._demand()
+    with pytest.raises(ValueError, match="demand.flows.N_in.u_turn: the approach has no such movement"):
+        _engine(['demand.flows=[{approach="N_in", u_turn=10.0}]'], tmp_path)._demand()
+
+
+def test_flows_give_each_movement_its_count(tmp_path):
+    """Four hours of arrivals: every movement's count is within 4 standard deviations of its flow
+    (Poisson-like arrivals: sd ~ sqrt(count)); the approaches not listed get none."""
+    e = _engine([FLOWS], tmp_path, duration=4 * 3600.0)
+    dep = e._demand()
+    counts = pd.Series([mv for _, mv, *_ in dep]).value_counts()
+    flows = {"N_in": (60, 500, 40), "S_in": (60, 500, 40), "E_in": (30, 100, 20), "W_in": (30, 100, 20)}
+    for appr, (left, straight, right) in flows.items():
+        for turn, q in (("left", left), ("straight", straight), ("right", right)):
+            expect = 4 * q
+            assert abs(counts.get(f"{appr}.{turn}", 0) - expect) < 4 * math.sqrt(expect) + 2, (appr, turn)
+    assert e.demand_veh_h(0.0, 3600.0) == pytest.approx(1500.0)
+    # the old keys still work, and their draws are those of before (the global shares)
+    old = _engine(["demand.rate_veh_h=400.0"], tmp_path, duration=600.0)._demand()
+    assert {mv.split(".")[1] for _, mv, *_ in old} == {"left", "straight", "right"}
+
+
+def test_an_interval_scales_the_demand_inside_it(tmp_path):
+    """A peak: scale 2 from 1800 to 3600 s over 400 veh/h per approach. Arrivals inside it are
+    twice as dense (each approach: 400 expected before, 400 inside), and the window's mean demand
+    is the integral of the rate: 4 x 400 x (1800 + 2 x 1800) / 3600 = 2400 veh/h."""
+    e = _engine(["demand.rate_veh_h=400.0", "demand.intervals=[{begin_s=1800.0, end_s=3600.0, scale=2.0}]"],
+                tmp_path, duration=3600.0)
+    t = np.array([d[2] for d in e._demand()])
+    before, inside = (t < 1800).sum(), (t >= 1800).sum()
+    assert abs(before - 800) < 4 * math.sqrt(800) and abs(inside - 1600) < 4 * math.sqrt(1600)
+    assert e.demand_veh_h(0.0, 3600.0) == pytest.approx(2400.0)
+    assert e.demand_veh_h(1800.0, 2700.0) == pytest.approx(3200.0)
+    assert e.demand_veh_h(900.0, 2700.0) == pytest.approx(2400.0)
+
+
+def test_movement_table_by_hand():
+    """Vehicles that entered the control zone inside [100, 400] s and left the merging zone count;
+    throughput over the 300 s window; LOS of the mean by the table named."""
+    v = pd.DataFrame({
+        "approach": ["N_in"] * 4 + ["E_in"] * 2,
+        "movement": ["straight", "straight", "straight", "left", "left", "left"],
+        "t_arrive_s": [50.0, 120.0, 200.0, 150.0, 300.0, 390.0],
+        "t_exit_s": [80.0, 150.0, 230.0, 185.0, 340.0, np.nan],
+        "delay_s": [99.0, 4.0, 8.0, 12.0, 30.0, np.nan],
+        "stops": [0.0, 0.0, 1.0, 1.0, 2.0, np.nan],
+        "fuel_ml": [20.0, 18.0, 22.0, 25.0, 30.0, np.nan],
+    })
+    m = metrics.movement_table(v, 100.0, 400.0, signalised=False).set_index(["approach", "movement"])
+    ns = m.loc[("N_in", "straight")]
+    assert ns["vehicles"] == 2 and ns["throughput_veh_h"] == pytest.approx(24.0)
+    assert ns["mean_delay_s"] == pytest.approx(6.0) and ns["los"] == "A"
+    assert ns["p95_delay_s"] == pytest.approx(4.0 + 0.95 * 4.0)
+    assert ns["stops_per_vehicle"] == pytest.approx(0.5) and ns["fuel_ml_per_vehicle"] == pytest.approx(20.0)
+    assert m.loc[("E_in", "left"), "mean_delay_s"] == pytest.approx(30.0)
+    assert m.loc[("E_in", "left"), "los"] == "D"  # unsignalised: 25 < 30 <= 35
+    assert metrics.movement_table(v, 100.0, 400.0, signalised=True).set_index(
+        ["approach", "movement"]).loc[("E_in", "left"), "los"] == "C"  # signalised: 20 < 30 <= 35
+
+
+def test_wait_to_enter_is_sumos_depart_delay_and_counts_in_delay(tmp_path):
+    """SUMO's priority junction at 600 veh/h per approach backs the minor roads up to where SUMO
+    inserts vehicles. Every vehicle's depart_delay_s equals SUMO's own departDelay in tripinfo.xml
+    less the wait for the next SUMO step after its desired departure (at most one step), its delay
+    includes it, and the demand not yet inserted at the end is reported."""
+    from runners.baseline import run_baseline
+
+    sc = scenario.load(CROSS4, ["demand.rate_veh_h=600.0", "outputs.warmup_s=60.0"])
+    res = run_baseline(sc, "priority", tmp_path / "prio", duration_s=600.0)
+    veh = res.vehicles.set_index("vehicle_id")
+    trips = {t.get("id"): float(t.get("departDelay"))  # SUMO writes it to 0.01 s
+             for t in ET.parse(tmp_path / "prio" / "tripinfo.xml").getroot().iter("tripinfo")}
+    desired = {v.get("id"): float(v.get("depart"))
+               for v in ET.parse(tmp_path / "prio" / "sumo" / "routes.rou.xml").getroot().iter("vehicle")}
+    common = [v for v in trips if v in veh.index]
+    assert len(common) > 50
+    for v in common:
+        step_wait = math.ceil(desired[v] / 0.1 - 1e-9) * 0.1 - desired[v]
+        assert 0.0 <= step_wait < 0.1 + 1e-9
+        assert veh.loc[v, "depart_delay_s"] == pytest.approx(max(0.0, trips[v] - step_wait), abs=0.006)
+    assert veh["depart_delay_s"].max() > 5.0  # the minor roads did back up
+    fin = veh[veh["delay_s"].notna()]
+    assert (fin["delay_s"] >= fin["depart_delay_s"] - 1.0).all()
+    s = res.summary
+    assert s["vehicles_waiting_to_enter"] > 0 and s["mean_wait_to_enter_s"] > 0
+    assert s["measure_from_s"] == 60.0 and s["measure_to_s"] == pytest.approx(600.0)
+    assert s["demand_veh_h"] == pytest.approx(2400.0)
+    assert s["served_share"] == pytest.approx(s["throughput_veh_h"] / 2400.0)
+    # only the vehicles that entered the control zone in the window count
+    inside = veh[veh["t_arrive_s"].between(60.0, 600.0) & veh["t_exit_s"].notna()]
+    assert s["vehicles_completed"] == len(inside)
+    assert s["mean_delay_s"] == pytest.approx(inside["delay_s"].mean())
+    assert s["los"] == metrics.level_of_service(s["mean_delay_s"], False)
+    # a baseline has no barriers: null, not false and 0
+    assert s["barriers_longitudinal"] is None and s["cbf_long_fallbacks"] is None
+    movements = pd.read_csv(tmp_path / "prio" / "movements.csv")
+    assert len(movements) == 12 and movements["vehicles"].sum() == len(inside)
+
+
+def test_run_directory_opens_in_sumo(tmp_path):
+    """sumo/run.sumocfg opens the run's network and routes: SUMO itself inserts the run's vehicles."""
+    from runners.single import run_scenario
+
+    sc = scenario.load(CROSS4, ["demand.rate_veh_h=400.0"])
+    out = tmp_path / "run"
+    run_scenario(sc, out, duration_s=20.0)
+    cfg = out / "sumo" / "run.sumocfg"
+    proc = subprocess.run([sumo_binary("sumo"), "-c", str(cfg), "--end", "20", "--no-step-log", "true",
+                           "--duration-log.statistics", "true"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    routes = ET.parse(out / "sumo" / "routes.rou.xml").getroot()
+    due = sum(float(v.get("depart")) <= 19.0 for v in routes.iter("vehicle"))
+    inserted = int(proc.stdout.split("Inserted: ")[1].split()[0])
+    assert due > 0 and inserted >= due
