@@ -98,6 +98,30 @@ class Movement:
         return off + pos * scale
 
 
+QUEUE_COLUMNS = ["approach", "begin_s", "end_s", "mean_queue_veh", "max_queue_veh", "mean_queue_m", "max_queue_m"]
+
+
+def parse_queues(path: Path) -> pd.DataFrame:
+    """Queues per approach and detector period from SUMO's lane-area detectors (``queues.xml``,
+    detector ids ``queue|approach|lane``): ``mean_queue_veh`` is SUMO's time-mean of the longest jam
+    (``meanMaxJamLengthInVehicles``), ``max_queue_veh`` the longest (``maxJamLengthInVehicles``),
+    each summed over the approach's lanes; the same in metres."""
+    import xml.etree.ElementTree as ET
+
+    if not Path(path).is_file():
+        return pd.DataFrame(columns=QUEUE_COLUMNS)
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError:  # a run that stopped early may leave it unterminated
+        return pd.DataFrame(columns=QUEUE_COLUMNS)
+    rows = [(iv.get("id").split("|")[1], float(iv.get("begin")), float(iv.get("end")),
+             float(iv.get("meanMaxJamLengthInVehicles")), float(iv.get("maxJamLengthInVehicles")),
+             float(iv.get("meanMaxJamLengthInMeters")), float(iv.get("maxJamLengthInMeters")))
+            for iv in root.iter("interval")]
+    df = pd.DataFrame(rows, columns=QUEUE_COLUMNS)
+    return df.groupby(["approach", "begin_s", "end_s"], as_index=False).sum()
+
+
 @dataclass
 class VehicleRecord:
     vehicle_id: str
@@ -153,12 +177,13 @@ class Engine:
 
     def __init__(self, scenario: Scenario, workdir: Path, seed: int | None = None, duration_s: float | None = None,
                  trajectories: TrajectoryWriter | None = None, progress: bool = False, control: bool = True,
-                 network: Path | None = None, label: str = "nrtraffic", checkpoint=None):
+                 network: Path | None = None, label: str = "nrtraffic", checkpoint=None, gui: bool = False):
         self.sc = scenario
         self.control = control
         self.network_path = Path(network) if network is not None else scenario.network_path
         self.label = label
         self.checkpoint = checkpoint
+        self.gui = gui
         self.seed = scenario.general.seed if seed is None else int(seed)
         self.duration = scenario.general.duration_s if duration_s is None else float(duration_s)
         self.workdir = Path(workdir)
@@ -260,6 +285,63 @@ class Engine:
             veh.append((v.id, mv, v.depart_s, v.depart_speed_mps, v.depart_pos_m))
         veh.sort(key=lambda v: v[2])
         return veh
+
+    QUEUE_PERIOD_S = 10.0  # aggregation period of the queue detectors [s]
+
+    def _queue_detectors(self, sdir: Path) -> tuple[str, ...]:
+        """At a junction: one SUMO lane-area (E2) detector over every lane of every approach, with
+        SUMO's default halting and jam thresholds, written every ``QUEUE_PERIOD_S`` to
+        ``queues.xml`` (:meth:`approach_table`); the SUMO arguments that load them."""
+        if not self.sc.junction.id:
+            return ()
+        import sumolib
+
+        net = sumolib.net.readNet(str(self.network_path))
+        out = (self.workdir / "queues.xml").resolve()
+        lines = ["<additional>"]
+        for appr in sorted({a for a, _, _ in self.movement_table.values()}):
+            for lane in net.getEdge(appr).getLanes():
+                lines.append(f'    <laneAreaDetector id="queue|{appr}|{lane.getID()}" lanes="{lane.getID()}" pos="0" '
+                             f'endPos="{lane.getLength():.3f}" friendlyPos="true" period="{self.QUEUE_PERIOD_S:g}" '
+                             f'file="{out}"/>')
+        lines.append("</additional>")
+        path = sdir / "queues.add.xml"
+        path.write_text("\n".join(lines) + "\n")
+        return ("--additional-files", str(path))
+
+    def queue_series(self) -> pd.DataFrame:
+        """Queues per approach and detector period (:func:`parse_queues` of ``queues.xml``)."""
+        return parse_queues(self.workdir / "queues.xml")
+
+    def approach_table(self, vehicles: pd.DataFrame, t_from: float, t_to: float) -> pd.DataFrame:
+        """``approaches.csv``: per approach, its demand and served flow over the window [veh/h]
+        (vehicles of the approach leaving the merging zone in it), and its queue from SUMO's
+        detectors over the detector periods inside the window: mean and maximum, in vehicles and
+        metres."""
+        cols = ["approach", "demand_veh_h", "served_veh_h", "mean_queue_veh", "max_queue_veh", "mean_queue_m",
+                "max_queue_m"]
+        q = self.queue_series()
+        if len(q):
+            q = q[(q["begin_s"] >= t_from - 1e-9) & (q["end_s"] <= t_to + 1e-9)]
+        hours = max(t_to - t_from, 0.0) / 3600.0
+        rates = self._approach_rates()
+        d = self.sc.demand
+        rows = []
+        for appr in sorted({a for a, _, _ in self.movement_table.values()}):
+            rate = rates.get(appr, (0.0,))[0]
+            lo, hi = max(t_from, d.begin_s), min(t_to, d.end_s if d.end_s > 0 else t_to)
+            cuts = d.breakpoints(lo, hi) if hi > lo else []
+            demand = rate * sum((b - a) * d.scale_at(a) for a, b in zip(cuts, cuts[1:])) / 3600.0 / hours \
+                if hours > 0 else math.nan
+            served = vehicles[(vehicles["approach"] == appr) & vehicles["t_exit_s"].between(t_from, t_to)]
+            g = q[q["approach"] == appr] if len(q) else q
+            rows.append({"approach": appr, "demand_veh_h": demand,
+                         "served_veh_h": len(served) / hours if hours > 0 else math.nan,
+                         "mean_queue_veh": g["mean_queue_veh"].mean() if len(g) else math.nan,
+                         "max_queue_veh": g["max_queue_veh"].max() if len(g) else math.nan,
+                         "mean_queue_m": g["mean_queue_m"].mean() if len(g) else math.nan,
+                         "max_queue_m": g["max_queue_m"].max() if len(g) else math.nan})
+        return pd.DataFrame(rows, columns=cols)
 
     def _approach_rates(self) -> dict[str, tuple[float, list[str], np.ndarray]]:
         """Per approach: its arrival rate [veh/h] (before the intervals' scale), its movements and
@@ -419,7 +501,8 @@ class Engine:
                 tripinfo=self.workdir / "tripinfo.xml" if o.sumo_tripinfo else None,
                 collisions=self.workdir / "collisions.xml" if o.sumo_collisions else None,
                 fcd=self.workdir / "fcd.xml" if o.sumo_fcd else None,
-                extra_args=self.sc.sumo.extra_args,
+                extra_args=self.sc.sumo.extra_args + self._queue_detectors(sdir),
+                gui=self.gui,
             )
             with self.sumo:
                 self.paths = self._paths(self.sumo)
@@ -485,6 +568,7 @@ class Engine:
                     rec.depart_delay = max(0.0, self.sumo.depart_delay(vid) - step_wait)
                     if rec.controlled:
                         rec.status = "approaching"
+                        self.sumo.colour(vid, "approaching")
                         self.sumo.hold_speed(vid, self.sumo.speed(vid))
                         approaching.append(vid)
                     else:
@@ -680,6 +764,7 @@ class Engine:
                 if not self.pending:
                     self.batch_closes = self.t + self.sc.coordinator.batch_window_s
                 self.pending.append(vid)
+                self.sumo.colour(vid, "pending")
         for vid in self.pending:
             if self.records[vid].status == "held":
                 self.records[vid].t_held += dt
@@ -721,6 +806,7 @@ class Engine:
         if rec.status != "held":
             rec.status = "held"
             self.sumo.hold_speed(vid, 0.0)
+            self.sumo.colour(vid, "held")
 
     def _admit(self, got, asg) -> None:
         """Take a scheduled vehicle over: from now on the kernel drives it."""
@@ -730,6 +816,7 @@ class Engine:
         mv = self.paths[rec.movement]
         rec.status = "controlled"
         self.sumo.take_over(vid)
+        self.sumo.colour(vid, "controlled")
         rec.t_enter, rec.v_enter, rec.s_enter = self.t, req.v0, s_proj
         rec.t_merge_planned, rec.v_merge_planned = asg.t_merge, asg.profile.v_m
         rec.predecessor, rec.relation, rec.binding = asg.predecessor, asg.relation, asg.binding
@@ -924,6 +1011,7 @@ class Engine:
             if done[i]:
                 self.sumo.release(vid)
                 rec.status = "released"
+                self.sumo.colour(vid, "released")
             else:
                 rec.status = "lost"
             rec.acc = self.acc[i].copy()
@@ -1084,4 +1172,8 @@ class Engine:
             "nrtraffic_version": __version__,
             "sumo_version": sumo_version(),
         }
-        return RunResult(summary, veh, self.workdir)
+        extra = {}
+        if final and self.sc.junction.id and hasattr(self, "movement_table"):
+            extra["approaches"] = self.approach_table(veh, w0, w1)
+            extra["queues"] = self.queue_series()
+        return RunResult(summary, veh, self.workdir, extra)

@@ -70,18 +70,20 @@ MOVEMENT_COLUMNS = ["approach", "movement", "vehicles", "throughput_veh_h", "mea
                     "los_thresholds", "stops_per_vehicle", "fuel_ml_per_vehicle"]
 
 
-def movement_table(vehicles, t_from: float, t_to: float, signalised: bool):
+def movement_table(vehicles, t_from: float, t_to: float, signalised: bool, movements=()):
     """One row per (approach, movement) of a run's ``vehicles.csv``: the vehicles that entered the
     control zone in ``[t_from, t_to]`` and left the merging zone, their throughput [veh/h over the
     window], mean and 95th-percentile delay [s], the HCM letter of the mean (``los_thresholds``
-    says which table), stops per vehicle (SUMO's waitingCount over the trip) and fuel [mL]."""
+    says which table), stops per vehicle (SUMO's waitingCount over the trip) and fuel [mL].
+    ``movements``: every ``(approach, movement)`` of the junction, so that one no vehicle took has
+    its row too."""
     import pandas as pd
 
     v = vehicles[vehicles["t_arrive_s"].between(t_from, t_to) & vehicles["t_exit_s"].notna()]
     hours = max(t_to - t_from, 0.0) / 3600.0
     rows = []
-    keys = vehicles[["approach", "movement"]].drop_duplicates().sort_values(["approach", "movement"])
-    for appr, mv in keys.itertuples(index=False):
+    keys = set(map(tuple, vehicles[["approach", "movement"]].drop_duplicates().itertuples(index=False)))
+    for appr, mv in sorted(keys | set(movements)):
         g = v[(v["approach"] == appr) & (v["movement"] == mv)]
         mean = mean_or_none(g["delay_s"])
         rows.append({"approach": appr, "movement": mv, "vehicles": len(g),

@@ -174,3 +174,75 @@ def conflict_areas(movements: dict, path: Path) -> Path:
         ax.axis("off")
     fig.suptitle("conflict areas (red) on each movement's path; grey: the movements it conflicts with", fontsize=9)
     return _save(fig, path)
+
+
+def queues(series: pd.DataFrame, path: Path, t_from: float = 0.0) -> Path:
+    """Queue length over time per approach (SUMO's lane-area detectors, ``queues.xml``): the mean
+    and the longest jam of each detector period, in vehicles; the warm-up shaded."""
+    fig, ax = plt.subplots(figsize=(7.5, 3.6))
+    for appr, g in series.groupby("approach"):
+        mid = 0.5 * (g["begin_s"] + g["end_s"])
+        line, = ax.plot(mid, g["max_queue_veh"], lw=1.2, label=f"{appr} (longest)")
+        ax.plot(mid, g["mean_queue_veh"], lw=0.8, ls="--", color=line.get_color())
+    if t_from > 0:
+        ax.axvspan(0, t_from, color="0.9", zorder=0, label="warm-up")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("queue [vehicles]")
+    ax.set_ylim(0, max(1.0, float(series["max_queue_veh"].max()) * 1.1))
+    ax.set_title("queue per approach (solid: longest jam in each 10 s; dashed: its time mean)", fontsize=9)
+    ax.legend(fontsize=7, ncol=2)
+    return _save(fig, path)
+
+
+def delay_by_movement(table: pd.DataFrame, path: Path, signalised: bool) -> Path:
+    """Mean delay per movement (``movements.csv``) as bars, with the HCM level-of-service bands
+    (signalised or unsignalised thresholds) behind them."""
+    from nrtraffic.metrics import LOS_SIGNALISED, LOS_UNSIGNALISED
+
+    bounds = LOS_SIGNALISED if signalised else LOS_UNSIGNALISED
+    t = table[table["vehicles"] > 0]
+    labels = [f"{a}\n{m}" for a, m in zip(t["approach"], t["movement"])]
+    top = max([bounds[-1] * 1.2] + [float(x) * 1.1 for x in t["p95_delay_s"].fillna(0)])
+    fig, ax = plt.subplots(figsize=(max(5.0, 0.6 * len(t) + 1.5), 3.6))
+    edges = (0.0, *bounds, top)
+    shades = ["#e8f5e9", "#f1f8e9", "#fffde7", "#fff3e0", "#fbe9e7", "#ffebee"]
+    for k, letter in enumerate("ABCDEF"):
+        ax.axhspan(edges[k], edges[k + 1], color=shades[k], zorder=0)
+        ax.text(len(t) - 0.4, 0.5 * (edges[k] + edges[k + 1]), letter, fontsize=8, va="center", color="0.4")
+    x = range(len(t))
+    ax.bar(x, t["mean_delay_s"], color="tab:blue", zorder=2, label="mean")
+    ax.scatter(x, t["p95_delay_s"], color="k", marker="_", s=120, zorder=3, label="95th percentile")
+    ax.set_xticks(list(x), labels, fontsize=7)
+    ax.set_ylim(0, top)
+    ax.set_ylabel("delay [s]")
+    ax.set_title(f"delay per movement, HCM level of service ({'signalised' if signalised else 'unsignalised'} "
+                 "thresholds)", fontsize=9)
+    ax.legend(fontsize=7, loc="upper left")
+    return _save(fig, path)
+
+
+def time_space(traj: pd.DataFrame, vehicles: pd.DataFrame, movements: dict, path: Path) -> Path:
+    """Time-space diagram per approach: every controlled vehicle's distance along its path (from
+    the control-zone entry) against time, with the merging zone shaded; coloured by movement."""
+    mvs = movements["movements"]
+    approaches = sorted({m["approach"] for m in mvs.values()})
+    fig, axes = plt.subplots(len(approaches), 1, figsize=(8.0, 2.2 * len(approaches)), sharex=True, squeeze=False)
+    colours = {"left": "tab:orange", "straight": "tab:blue", "right": "tab:green", "uturn": "tab:purple"}
+    info = vehicles.set_index("vehicle_id")[["approach", "movement"]]
+    traj = traj.join(info, on="vehicle_id")
+    for ax, appr in zip(axes[:, 0], approaches):
+        zone = [m for m in mvs.values() if m["approach"] == appr]
+        d0 = min(m["merge_entry_m"] - m["control_zone_start_m"] for m in zone)
+        d1 = max(m["merge_exit_m"] - m["control_zone_start_m"] for m in zone)
+        ax.axhspan(d0, d1, color="0.9", zorder=0)
+        for vid, g in traj[traj["approach"] == appr].groupby("vehicle_id"):
+            ax.plot(g["t"], g["s_m"], lw=0.6, color=colours.get(g["movement"].iloc[0], "k"))
+        ax.set_ylabel(f"{appr}\n[m]", fontsize=8)
+        ax.set_ylim(0, d1 + 10)
+    handles = [plt.Line2D([], [], color=c, label=k) for k, c in colours.items()
+               if k in set(vehicles["movement"])]
+    axes[0, 0].legend(handles=handles, fontsize=7, ncol=len(handles), loc="upper left")
+    axes[0, 0].set_title("distance from the control-zone entry while under control (merging zone shaded)",
+                         fontsize=9)
+    axes[-1, 0].set_xlabel("time [s]")
+    return _save(fig, path)

@@ -173,17 +173,26 @@ def write_vehicles(path: Path, vehicles: pd.DataFrame) -> None:
     tmp.replace(path)
 
 
+def write_table(path: Path, table: pd.DataFrame) -> None:
+    """A CSV table, written under a temporary name and renamed when whole."""
+    tmp = Path(path).with_suffix(".csv.tmp")
+    table.to_csv(tmp, index=False, float_format="%.6g")
+    tmp.replace(path)
+
+
 def write_movements(path: Path, result: "RunResult") -> pd.DataFrame:
     """``movements.csv``: the per-movement table of a run (:func:`nrtraffic.metrics.movement_table`)
     over its measurement window."""
     from nrtraffic.metrics import movement_table
 
     s = result.summary
+    known = ()
+    doc_path = Path(path).parent / "movements.json"
+    if doc_path.is_file():
+        known = [(m["approach"], m["turn"]) for m in json.loads(doc_path.read_text())["movements"].values()]
     table = movement_table(result.vehicles, s.get("measure_from_s") or 0.0, s.get("measure_to_s") or 0.0,
-                           s.get("control") == "traffic_light")
-    tmp = Path(path).with_suffix(".csv.tmp")
-    table.to_csv(tmp, index=False, float_format="%.6g")
-    tmp.replace(path)
+                           s.get("control") == "traffic_light", known)
+    write_table(path, table)
     return table
 
 

@@ -48,6 +48,9 @@ def _add_run(sub) -> None:
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="override a scenario setting (repeatable), e.g. --set controller.horizon_s=0.3")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--gui", action="store_true",
+                   help="watch the run in sumo-gui (needs a display; vehicles coloured by state: grey approaching, "
+                        "amber waiting for their batch, red held, blue under control, green released)")
 
 
 def _add_paper(sub) -> None:
@@ -233,6 +236,7 @@ def main(argv: list[str] | None = None) -> int:
             _claim(args.out, sc, args.seed, args.duration, f"sumo_{args.junction}", args.force)
             res = run_baseline(sc, args.junction, args.out, seed=args.seed, duration_s=args.duration,
                                progress=not args.no_progress)
+            _report(args.out)
             _print_summary(res.summary, args.out)
             return 0
         if args.command == "sweep":
@@ -281,20 +285,17 @@ def _cmd_run(args) -> int:
     seed = sc.general.seed if args.seed is None else args.seed
     out = args.out or Path("runs") / f"{sc.general.name}-seed{seed}"
     _claim(out, sc, seed, args.duration, "nrtraffic", args.force)
-    res = run_scenario(sc, out, seed=seed, duration_s=args.duration, progress=not args.no_progress)
-    _movements_figure(out)
+    res = run_scenario(sc, out, seed=seed, duration_s=args.duration, progress=not args.no_progress, gui=args.gui)
+    _report(out)
     _print_summary(res.summary, out)
     return 0
 
 
-def _movements_figure(out: Path) -> None:
-    """``movements.png``: the junction's movements and conflict areas (single runs only: a sweep's
-    runs share them)."""
-    doc = json.loads((out / "movements.json").read_text())
-    if doc.get("conflict_areas"):
-        from nrtraffic import plots
+def _report(out: Path) -> None:
+    """The run's figures and ``report.html`` (single runs and baselines; a sweep's runs get none)."""
+    from nrtraffic.report import run_report
 
-        plots.conflict_areas(doc, out / "movements.png")
+    run_report(out)
 
 
 def _print_summary(s: dict, out: Path) -> None:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from nrtraffic import scenario as scenario_mod
 from nrtraffic.engine import Engine, RunFailed
-from nrtraffic.results import RunResult, TrajectoryWriter, write_movements, write_summary, write_vehicles
+from nrtraffic.results import RunResult, TrajectoryWriter, write_movements, write_summary, write_table, write_vehicles
 from nrtraffic.sumo.network import check_scenario, check_sumo_args
 
 
@@ -36,10 +36,10 @@ def prepare_run_dir(sc: scenario_mod.Scenario, out: Path) -> Path:
 
 
 def run_scenario(sc: scenario_mod.Scenario, out: Path, seed: int | None = None, duration_s: float | None = None,
-                 progress: bool = False) -> RunResult:
+                 progress: bool = False, gui: bool = False) -> RunResult:
     """Run ``sc`` and write the run directory ``out``; raises :class:`RunFailed` after writing what
-    was finished when the run stops early."""
-    return execute(sc, prepare_run_dir(sc, out), seed, duration_s, progress)
+    was finished when the run stops early. ``gui``: in sumo-gui (:class:`~nrtraffic.sumo.adapter.SumoSession`)."""
+    return execute(sc, prepare_run_dir(sc, out), seed, duration_s, progress, gui=gui)
 
 
 def resolve(sc: scenario_mod.Scenario, seed: int | None, duration_s: float | None) -> scenario_mod.Scenario:
@@ -55,9 +55,11 @@ def resolved_text(sc: scenario_mod.Scenario, seed: int | None, duration_s: float
 
 
 # what a run writes into its directory (``--force`` removes these, and nothing else)
-RUN_FILES = ("summary.json", "vehicles.csv", "movements.csv", "trajectories.parquet", "trajectories.parquet.tmp",
-             "trajectories.partial.arrows", "scenario.resolved.toml", "movements.json", "movements.png", "tripinfo.xml",
-             "collisions.xml", "fcd.xml", "summary.json.tmp", "vehicles.csv.tmp", "movements.csv.tmp", "sumo")
+RUN_FILES = ("summary.json", "vehicles.csv", "movements.csv", "approaches.csv", "trajectories.parquet",
+             "trajectories.parquet.tmp", "trajectories.partial.arrows", "scenario.resolved.toml", "movements.json",
+             "movements.png", "delays.png", "queues.png", "time_space.png", "report.html", "tripinfo.xml",
+             "collisions.xml", "fcd.xml", "queues.xml", "summary.json.tmp", "vehicles.csv.tmp", "movements.csv.tmp",
+             "approaches.csv.tmp", "sumo")
 
 
 def claim_run_dir(out: Path, sc: scenario_mod.Scenario, seed: int | None, duration_s: float | None, control: str,
@@ -123,4 +125,6 @@ def _write(result: RunResult, out: Path) -> None:
     whole)."""
     write_vehicles(out / "vehicles.csv", result.vehicles)
     write_movements(out / "movements.csv", result)
+    if "approaches" in result.extra:
+        write_table(out / "approaches.csv", result.extra["approaches"])
     write_summary(out / "summary.json", result.summary)

@@ -368,6 +368,9 @@ def write_tables(df: pd.DataFrame, out: Path) -> None:
     if len(summ) and (summ["runs"] > 0).any():
         figure(summ, out / "sweep.png")
         seed_figure(df, out / "sweep_seeds.png")
+    from nrtraffic.report import sweep_report
+
+    sweep_report(out)
 
 
 def markdown(summ: pd.DataFrame, df: pd.DataFrame) -> str:

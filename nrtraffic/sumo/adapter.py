@@ -138,11 +138,18 @@ class SumoSession:
     lateral_resolution_m : sublane width [m].
     tripinfo, collisions, fcd : output files (None: not written). A name ending in .csv or
         .parquet selects that format (SUMO's own writers).
+    gui : run in sumo-gui (shipped with eclipse-sumo) through TraCI instead of libsumo, to watch
+        the run; slower, and needs a display.
     """
+
+    # colours of the vehicles in sumo-gui by their state in the run (RGBA)
+    COLOURS = {"approaching": (160, 160, 160, 255), "held": (220, 40, 40, 255), "pending": (240, 180, 0, 255),
+               "controlled": (30, 110, 230, 255), "released": (40, 170, 60, 255)}
 
     def __init__(self, net: Path, routes: Path, step_length_s: float, seed: int, lateral_resolution_m: float = 0.25,
                  tripinfo: Path | None = None, collisions: Path | None = None, fcd: Path | None = None,
-                 extra_args: tuple[str, ...] = ()):
+                 extra_args: tuple[str, ...] = (), gui: bool = False):
+        self.gui = gui
         self.args = [
             "sumo",
             "--net-file", str(net),
@@ -178,9 +185,17 @@ class SumoSession:
         global _ACTIVE
         if _ACTIVE is not None:
             raise SumoError("a SUMO simulation is already running in this process (libsumo allows one)")
-        t = _libsumo()
+        if self.gui:
+            import traci as t
+
+            from nrtraffic.sumo.netbuild import sumo_binary
+
+            args = [sumo_binary("sumo-gui"), *self.args[1:], "--start", "true", "--quit-on-end", "true"]
+        else:
+            t = _libsumo()
+            args = self.args
         try:
-            t.start(self.args)
+            t.start(args)
         except Exception as exc:
             raise SumoError(f"SUMO failed to start: {exc}") from None
         self.traci = t
@@ -315,6 +330,11 @@ class SumoSession:
     def lane_position(self, vid: str) -> tuple[str, float]:
         """(lane id, front-bumper position along it [m])."""
         return self.traci.vehicle.getLaneID(vid), self.traci.vehicle.getLanePosition(vid)
+
+    def colour(self, vid: str, state: str) -> None:
+        """In sumo-gui, colour a vehicle by its state (:attr:`COLOURS`); nothing without the GUI."""
+        if self.gui:
+            self.traci.vehicle.setColor(vid, self.COLOURS[state])
 
     def hold_speed(self, vid: str, speed: float) -> None:
         """Let SUMO drive the vehicle at a fixed desired speed (safety checks stay on)."""
