@@ -45,6 +45,8 @@ HEADLINE = ("throughput_veh_h", "mean_delay_s", "mean_sumo_time_loss_s", "mean_f
 NOT_FIGURES = {"scenario", "seed", "status", "error", "nrtraffic_version", "sumo_version", "control",
                "junction_type", "los"}
 
+MIN_SEEDS_FOR_CI = 5  # the figures draw no confidence interval from fewer seeds
+
 _ONE_SIMULATION = threading.Lock()  # per worker process, whatever its thread count
 
 
@@ -435,27 +437,40 @@ def _x_axis(summ: pd.DataFrame):
 
 
 def figure(summ: pd.DataFrame, path: Path) -> None:
-    """Throughput, mean delay and fuel against the grid value, mean with its 95 % band per control."""
+    """Throughput, mean delay and fuel against the grid value, mean with its 95 % band per control
+    (a single grid point: error bars). An interval from fewer than ``MIN_SEEDS_FOR_CI`` seeds is
+    not drawn: it says little and its width would set the axis."""
     from nrtraffic.plots import plt
 
     xlabel, x, ticks = _x_axis(summ)
+    if xlabel == "demand.rate_veh_h":
+        xlabel = "demand [veh/h per approach]"
     fig, axes = plt.subplots(1, 3, figsize=(12.5, 3.8))
+    few_any = False
     for control, g in summ.groupby("control", sort=False):
         xs = x[g.index]
         order = xs.argsort()
+        few = g["runs"].to_numpy()[order] < MIN_SEEDS_FOR_CI
+        few_any |= bool(few.any())
         for ax, k, label in zip(axes, ("throughput_veh_h", "mean_delay_s", "mean_fuel_ml"),
                                 ("throughput [veh/h]", "mean delay [s]", "fuel [mL/veh]")):
             m = g[f"{k}_mean"].to_numpy()[order]
             c = g[f"{k}_ci95"].fillna(0.0).to_numpy()[order]
+            c[few] = 0.0
             xo = xs.to_numpy()[order]
-            line, = ax.plot(xo, m, marker="o", label=control)
-            ax.fill_between(xo, m - c, m + c, color=line.get_color(), alpha=0.2, linewidth=0)
+            if len(xo) == 1:
+                ax.errorbar(xo, m, yerr=c, fmt="o", capsize=4, label=control)
+            else:
+                line, = ax.plot(xo, m, marker="o", label=control)
+                ax.fill_between(xo, m - c, m + c, color=line.get_color(), alpha=0.2, linewidth=0)
             ax.set(xlabel=xlabel, ylabel=label)
             ax.grid(alpha=0.3)
             if ticks:
                 ax.set_xticks(range(len(ticks)), ticks, rotation=20, fontsize=7)
     axes[0].legend(fontsize=8)
-    fig.suptitle("mean over seeds, band: 95 % confidence interval", fontsize=9)
+    fig.suptitle("mean over seeds, band: 95 % confidence interval"
+                 + (f" (not drawn where fewer than {MIN_SEEDS_FOR_CI} seeds: unreliable)" if few_any else ""),
+                 fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
