@@ -249,7 +249,13 @@ class Engine:
         d = self.sc.demand
         rng = np.random.default_rng(self.seed)
         veh = []
-        rates = self._approach_rates()
+        if d.sumo_routes:
+            from nrtraffic.sumo.demandfile import read_sumo_demand
+
+            end = d.end_s if d.end_s > 0 else (self.duration if self.duration > 0 else math.inf)
+            by_edges = {(r[0], r[1]): name for name, (_, _, r) in self.movement_table.items()}
+            veh = read_sumo_demand(self.sc.base_dir / d.sumo_routes, by_edges, rng, end, d.entry_speed_mps)
+        rates = self._approach_rates() if not d.sumo_routes else {}
         if rates:
             end = d.end_s if d.end_s > 0 else (self.duration if self.duration > 0 else math.inf)
             if d.max_vehicles == 0 and not math.isfinite(end):
@@ -324,15 +330,9 @@ class Engine:
         if len(q):
             q = q[(q["begin_s"] >= t_from - 1e-9) & (q["end_s"] <= t_to + 1e-9)]
         hours = max(t_to - t_from, 0.0) / 3600.0
-        rates = self._approach_rates()
-        d = self.sc.demand
         rows = []
         for appr in sorted({a for a, _, _ in self.movement_table.values()}):
-            rate = rates.get(appr, (0.0,))[0]
-            lo, hi = max(t_from, d.begin_s), min(t_to, d.end_s if d.end_s > 0 else t_to)
-            cuts = d.breakpoints(lo, hi) if hi > lo else []
-            demand = rate * sum((b - a) * d.scale_at(a) for a, b in zip(cuts, cuts[1:])) / 3600.0 / hours \
-                if hours > 0 else math.nan
+            demand = self.demand_veh_h(t_from, t_to, appr) if hours > 0 else math.nan
             served = vehicles[(vehicles["approach"] == appr) & vehicles["t_exit_s"].between(t_from, t_to)]
             g = q[q["approach"] == appr] if len(q) else q
             rows.append({"approach": appr, "demand_veh_h": demand,
@@ -380,10 +380,17 @@ class Engine:
             out[appr] = (3600.0 / d.headway_s, names, share)
         return out
 
-    def demand_veh_h(self, begin: float, end: float) -> float:
-        """Mean demand into the junction over ``[begin, end]`` [veh/h]: every approach's rate times
-        the intervals' scale, averaged over the window (not the sampled arrivals)."""
+    def demand_veh_h(self, begin: float, end: float, approach: str | None = None) -> float:
+        """Mean demand into the junction (or one approach) over ``[begin, end]`` [veh/h]: every
+        approach's rate times the intervals' scale, averaged over the window (not the sampled
+        arrivals); with ``demand.sumo_routes``, the file's departures in the window."""
+        if self.sc.demand.sumo_routes:
+            times = [t for vid, (mv, t, _) in self._all_departures.items()
+                     if begin <= t <= end and (approach is None or self.movement_table[mv][0] == approach)]
+            return len(times) / (end - begin) * 3600.0 if end > begin else 0.0
         rates = self._approach_rates()
+        if approach is not None:
+            rates = {a: r for a, r in rates.items() if a == approach}
         total = sum(r for r, _, _ in rates.values())
         d = self.sc.demand
         lo, hi = max(begin, d.begin_s), min(end, d.end_s if d.end_s > 0 else end)
@@ -491,6 +498,7 @@ class Engine:
             # a vehicle's record is made when SUMO inserts it: memory grows with the vehicles that
             # entered so far, not with the whole demand of the run
             self._scheduled = {vid: (mv, t, speed) for vid, mv, t, speed, _ in demand}
+            self._all_departures = dict(self._scheduled)
             routes = sdir / "routes.rou.xml"
             write_routes(routes, vtype, {k: v[2] for k, v in self.movement_table.items()}, demand)
             write_sumocfg(sdir / "run.sumocfg", self.network_path, routes, self.sc.sumo.step_length_s)

@@ -215,6 +215,7 @@ class Demand:
     end_s: float = 0.0  # last departure time; 0 = scenario.duration_s
     flows: tuple[DemandFlow, ...] = ()  # turning movement counts per approach; replace rate_veh_h and the shares
     intervals: tuple[DemandInterval, ...] = ()  # periods with scaled demand (a peak)
+    sumo_routes: str = ""  # a SUMO demand file (.rou.xml: flows, trips, vehicles) instead of the keys above
 
     def validate(self) -> None:
         if self.entry_speed_mps <= 0:
@@ -560,6 +561,17 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
     if not allow_outside and not sc.network_path.is_relative_to(sc.base_dir):
         raise ScenarioError(f"scenario.network = {sc.general.network!r} lies outside the scenario's folder "
                             f"{sc.base_dir} (allowed only with --allow-outside)")
+    if sc.demand.sumo_routes:
+        routes = (sc.base_dir / sc.demand.sumo_routes).resolve()
+        if not sc.junction.id:
+            raise ScenarioError("demand.sumo_routes needs a [junction] (its vehicles are mapped to its movements)")
+        if not allow_outside and not routes.is_relative_to(sc.base_dir):
+            raise ScenarioError(f"demand.sumo_routes = {sc.demand.sumo_routes!r} lies outside the scenario's folder "
+                                f"{sc.base_dir} (allowed only with --allow-outside)")
+        if not routes.is_file():
+            raise ScenarioError(f"demand.sumo_routes: file not found: {routes}")
+        if sc.demand.flows or sc.demand.rate_veh_h > 0:
+            raise ScenarioError("demand.sumo_routes replaces demand.flows and demand.rate_veh_h: give one of them")
     if not sc.network_path.is_file():
         raise ScenarioError(f"network file not found: {sc.network_path} (scenario.network = {sc.general.network!r})")
     if sc.controller.plant_step_s > sc.sumo.step_length_s:

@@ -13,6 +13,7 @@ import pytest
 from nrtraffic import metrics, scenario
 from nrtraffic.engine import Engine
 from nrtraffic.scenario import ScenarioError
+from nrtraffic.sumo.demandfile import DemandFileError, read_sumo_demand
 from nrtraffic.sumo.netbuild import sumo_binary
 
 from conftest import SCENARIOS
@@ -247,3 +248,87 @@ def test_gui_run_is_the_same_run(tmp_path):
     assert len(a) == len(b) > 5
     assert np.allclose(a["t_exit_s"], b["t_exit_s"], equal_nan=True)
     assert np.allclose(a["delay_s"], b["delay_s"], equal_nan=True)
+
+
+# ---------------------------------------------------------------- demand.sumo_routes
+
+TEE3 = SCENARIOS / "tee3"
+_MOVES = {("W_in", "E_out"): "W_in.straight", ("W_in", "S_out"): "W_in.right", ("E_in", "W_out"): "E_in.straight",
+          ("E_in", "S_out"): "E_in.left", ("S_in", "W_out"): "S_in.left", ("S_in", "E_out"): "S_in.right"}
+
+
+def _routes(tmp_path, body):
+    p = tmp_path / "d.rou.xml"
+    p.write_text(f"<routes>\n{body}\n</routes>\n")
+    return p
+
+
+def test_sumo_demand_file_follows_sumos_flow_rules(tmp_path):
+    """vehsPerHour and period: equally spaced from begin; number alone: spread over [begin, end);
+    probability: one chance per second; exp(rate): exponential headways (counts within 4 sd);
+    trips and vehicles with a route reference or an inner route; each mapped by its edges."""
+    p = _routes(tmp_path, """
+    <route id="r" edges="S_in E_out"/>
+    <flow id="a" from="W_in" to="E_out" begin="10" end="3610" vehsPerHour="120"/>
+    <flow id="b" route="r" begin="0" end="100" number="4" departSpeed="10.5"/>
+    <flow id="c" from="E_in" to="S_out" begin="0" end="36000" probability="0.05"/>
+    <flow id="d" from="S_in" to="W_out" begin="0" end="36000" period="exp(0.02)"/>
+    <trip id="t" depart="3.5" from="W_in" to="S_out"/>
+    <vehicle id="v" depart="7"><route edges="E_in W_out"/></vehicle>""")
+    dep = read_sumo_demand(p, _MOVES, np.random.default_rng(1), math.inf, 13.89)
+    by = pd.DataFrame(dep, columns=["id", "movement", "t", "v", "pos"])
+    a = by[by["id"].str.startswith("a.")]
+    assert len(a) == 120 and np.allclose(np.diff(a["t"]), 30.0) and a["t"].iloc[0] == 10.0
+    assert (a["movement"] == "W_in.straight").all()
+    b = by[by["id"].str.startswith("b.")]
+    assert b["t"].tolist() == [0.0, 25.0, 50.0, 75.0] and (b["v"] == 10.5).all() and (b["movement"] == "S_in.right").all()
+    assert abs((by["id"].str.startswith("c.")).sum() - 1800) < 4 * math.sqrt(1800)
+    assert abs((by["id"].str.startswith("d.")).sum() - 720) < 4 * math.sqrt(720)
+    assert by.set_index("id").loc["t", "movement"] == "W_in.right" and by.set_index("id").loc["v", "t"] == 7.0
+    assert (by.loc[~by["id"].isin(["b.0", "b.1", "b.2", "b.3"]), "v"] == 13.89).all()  # no departSpeed given
+    # the run's end cuts open-ended flows
+    short = read_sumo_demand(p, _MOVES, np.random.default_rng(1), 100.0, 13.89)
+    assert all(t < 100.0 for vid, _, t, _, _ in short if vid.startswith(("a.", "c.", "d.")))
+
+
+@pytest.mark.parametrize("body, message", [
+    ('<flow id="x" route="nope" begin="0" end="10" period="1"/>', "route 'nope' is not defined"),
+    ('<trip id="x" depart="1" from="W_in" to="W_out"/>', "uses no movement of the junction"),
+    ('<flow id="x" from="W_in" to="E_out" begin="0" end="10"/>', "needs period, vehsPerHour, probability"),
+    ('<flow id="x" from="W_in" to="E_out" begin="0" end="10" probability="2"/>', "probability must be in"),
+    ('<trip id="x" depart="soon" from="W_in" to="E_out"/>', "depart='soon' is not a number"),
+    ('<trip depart="1" from="W_in" to="E_out"/>', "without an id"),
+    ('<vehicle id="x" depart="1"/>', "needs from/to, a route"),
+])
+def test_sumo_demand_file_errors_name_the_element(tmp_path, body, message):
+    with pytest.raises(DemandFileError, match=message):
+        read_sumo_demand(_routes(tmp_path, body), _MOVES, np.random.default_rng(1), 100.0, 13.89)
+    bad = tmp_path / "bad.rou.xml"
+    bad.write_text("<routes><flow")
+    with pytest.raises(DemandFileError, match="cannot be read as XML"):
+        read_sumo_demand(bad, _MOVES, np.random.default_rng(1), 100.0, 13.89)
+
+
+def test_sumo_routes_key_is_checked_when_the_scenario_loads(tmp_path):
+    with pytest.raises(ScenarioError, match="demand.sumo_routes: file not found"):
+        scenario.load(TEE3 / "routes.toml", ['demand.sumo_routes="missing.rou.xml"'])
+    with pytest.raises(ScenarioError, match="replaces demand.flows and demand.rate_veh_h"):
+        scenario.load(TEE3 / "routes.toml", ["demand.rate_veh_h=100.0"])
+    with pytest.raises(ScenarioError, match="lies outside the scenario's folder"):
+        scenario.load(TEE3 / "routes.toml", ['demand.sumo_routes="../cross4/net.net.xml"'])
+
+
+def test_a_sumo_demand_file_drives_a_controlled_run(tmp_path):
+    """tee3 from flows.rou.xml: the file's vehicles enter, are mapped to their movements by their
+    edges and are driven by the controller (they have plant steps and tracking figures)."""
+    from runners.single import run_scenario
+
+    sc = scenario.load(TEE3 / "routes.toml", ["outputs.warmup_s=0.0"])
+    res = run_scenario(sc, tmp_path / "run", duration_s=90.0)
+    v = res.vehicles.set_index("vehicle_id")
+    assert v.loc["early_S", "approach"] == "S_in" and v.loc["early_S", "movement"] == "right"
+    assert v.loc["early_E", "movement"] == "straight"
+    done = v[v["t_exit_s"].notna()]
+    assert len(done) > 10 and (done["plant_steps"] > 0).all() and done["max_tracking_error_m"].notna().all()
+    assert {i.split(".")[0] for i in done.index} >= {"W_E", "E_W"}
+    assert res.summary["collisions"] == 0 and res.summary["demand_veh_h"] > 0
