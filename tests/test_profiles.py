@@ -63,8 +63,9 @@ def test_speed_bounded_profiles(T, kind):
 def _qp_energy(v0, D, T, b, n=400, vm=None):
     """Independent reference: the discretised problem min 1/2 sum u_k^2 dt s.t. double-integrator
     dynamics (exact zero-order hold), p_N = D (and v_N = vm when given), bounds on u and v --
-    solved as a QP by OSQP."""
-    from qpsolvers import solve_qp
+    solved as a QP by OSQP (called directly, with sparse matrices)."""
+    import osqp
+    from scipy import sparse
 
     dt = T / n
     # p_N = v0 T + sum_k u_k dt^2 (N - k - 1/2); v_j = v0 + dt sum_{k<j} u_k
@@ -76,11 +77,16 @@ def _qp_energy(v0, D, T, b, n=400, vm=None):
     L = np.tril(np.ones((n, n))) * dt
     G = np.vstack([L, -L])
     h = np.concatenate([np.full(n, b.v_max_mps - v0), np.full(n, v0 - b.v_min_mps)])
-    P = np.eye(n) * dt
-    q = np.zeros(n)
-    u = solve_qp(P, q, G, h, A_eq, b_eq, lb=np.full(n, b.u_min_mps2), ub=np.full(n, b.u_max_mps2),
-                 solver="osqp", eps_abs=1e-9, eps_rel=1e-9, max_iter=200000, polishing=True)
-    assert u is not None
+    # OSQP's form: min 1/2 u' P u  s.t.  l <= A u <= h (equalities, speed bounds, input bounds)
+    A = sparse.vstack([sparse.csc_matrix(A_eq), sparse.csc_matrix(G), sparse.identity(n)], format="csc")
+    lo = np.concatenate([b_eq, np.full(2 * n, -np.inf), np.full(n, b.u_min_mps2)])
+    hi = np.concatenate([b_eq, h, np.full(n, b.u_max_mps2)])
+    qp = osqp.OSQP()
+    qp.setup(P=sparse.identity(n, format="csc") * dt, q=np.zeros(n), A=A, l=lo, u=hi, eps_abs=1e-9, eps_rel=1e-9,
+             max_iter=200000, polishing=True, verbose=False)
+    res = qp.solve(raise_error=True)
+    u = res.x
+    assert u is not None and np.all(np.isfinite(u))
     return 0.5 * float(np.sum(u * u) * dt)
 
 

@@ -171,8 +171,13 @@ def long_filter_qp(a_star: float, G: float, b: float, a_lo: float, a_hi: float, 
 
     if not (np.isfinite(G) and np.isfinite(b)):
         return a_lo, FALLBACK
-    prob = Problem(P=np.array([[2.0]]), q=np.array([-2.0 * a_star]), G=np.array([[G]]), h=np.array([b]),
-                   lb=np.array([a_lo]), ub=np.array([a_hi]))
+    Pm, Gm = np.array([[2.0]]), np.array([[G]])
+    if solver == "osqp":  # a sparse solver: give it sparse matrices
+        from scipy import sparse
+
+        Pm, Gm = sparse.csc_matrix(Pm), sparse.csc_matrix(Gm)
+    prob = Problem(P=Pm, q=np.array([-2.0 * a_star]), G=Gm, h=np.array([b]), lb=np.array([a_lo]),
+                   ub=np.array([a_hi]))
     kwargs = {"eps_abs": 1e-9, "eps_rel": 1e-9, "polishing": True} if solver == "osqp" else {}
     import warnings
 

@@ -363,7 +363,12 @@ def rear_end_constrained(t0: float, v0: float, D: float, T: float, bounds: PlanB
     if ahead.size:
         G.append(Ap[ahead])
         hv.append(leader_pos(t0 + tau[ahead]) - gap_m - v0 * tau[ahead])
-    prob = Problem(P=P, q=np.zeros(n), G=np.vstack(G), h=np.concatenate(hv), A=np.vstack(A), b=np.array(b),
+    Gm, Am = np.vstack(G), np.vstack(A)
+    if solver == "osqp":  # a sparse solver: give it sparse matrices
+        from scipy import sparse
+
+        P, Gm, Am = sparse.csc_matrix(P), sparse.csc_matrix(Gm), sparse.csc_matrix(Am)
+    prob = Problem(P=P, q=np.zeros(n), G=Gm, h=np.concatenate(hv), A=Am, b=np.array(b),
                    lb=np.full(n, bounds.u_min_mps2), ub=np.full(n, bounds.u_max_mps2))
     kwargs = {"eps_abs": 1e-6, "eps_rel": 1e-6, "polishing": True, "max_iter": 100000} if solver == "osqp" else {}
     import warnings
