@@ -501,7 +501,9 @@ class Engine:
             self._all_departures = dict(self._scheduled)
             routes = sdir / "routes.rou.xml"
             write_routes(routes, vtype, {k: v[2] for k, v in self.movement_table.items()}, demand)
-            write_sumocfg(sdir / "run.sumocfg", self.network_path, routes, self.sc.sumo.step_length_s)
+            copy = sdir / self.network_path.name  # the run directory's own copy, where there is one
+            write_sumocfg(sdir / "run.sumocfg", copy if copy.is_file() else self.network_path, routes,
+                          self.sc.sumo.step_length_s)
             o = self.sc.outputs
             self.sumo = SumoSession(
                 self.network_path, routes, self.sc.sumo.step_length_s, self.seed,
