@@ -481,6 +481,16 @@ class Engine:
         self.conflict_areas = conflict_areas(geo, relations, p.length, p.width, clearance)
         return relations
 
+    def write_demand(self, path: Path) -> list[tuple]:
+        """The run's departures (:meth:`_demand`) as a SUMO route file, in nrtraffic's vehicle
+        type; returns them."""
+        self._movement_table()
+        demand = self._demand()
+        p = self.params
+        vtype = VehicleType(length_m=p.length, width_m=p.width, max_speed_mps=max(self.sc.planning.v_max_mps, 1.0))
+        write_routes(path, vtype, {k: v[2] for k, v in self.movement_table.items()}, demand)
+        return demand
+
     # ------------------------------------------------------------------ run
     def run(self) -> RunResult:
         """Run the simulation; returns a :class:`RunResult` or raises :class:`RunFailed` (with the
@@ -488,19 +498,15 @@ class Engine:
         self.workdir.mkdir(parents=True, exist_ok=True)
         sdir = self.workdir / "sumo"
         sdir.mkdir(exist_ok=True)
-        p = self.params
-        vtype = VehicleType(length_m=p.length, width_m=p.width, max_speed_mps=max(self.sc.planning.v_max_mps, 1.0))
         wall0 = self.wall0 = time.perf_counter()
         error = None
         try:
-            self._movement_table()
-            demand = self._demand()
+            routes = sdir / "routes.rou.xml"
+            demand = self.write_demand(routes)
             # a vehicle's record is made when SUMO inserts it: memory grows with the vehicles that
             # entered so far, not with the whole demand of the run
             self._scheduled = {vid: (mv, t, speed) for vid, mv, t, speed, _ in demand}
             self._all_departures = dict(self._scheduled)
-            routes = sdir / "routes.rou.xml"
-            write_routes(routes, vtype, {k: v[2] for k, v in self.movement_table.items()}, demand)
             copy = sdir / self.network_path.name  # the run directory's own copy, where there is one
             write_sumocfg(sdir / "run.sumocfg", copy if copy.is_file() else self.network_path, routes,
                           self.sc.sumo.step_length_s)

@@ -3,7 +3,9 @@
 Every arm is one lane each way, 520 m long, 50 km/h (13.89 m/s); the junction node "C" is at the
 origin. cross4_curved bends its north arm on an arc of radius 600 m. The networks are built with
 junction type "priority" (the type nrtraffic runs on: the vehicles it controls pass the junction
-under moveToXY); the baselines rebuild them with SUMO's own junction control.
+under moveToXY); the baselines rebuild them with SUMO's own junction control. Each folder also
+gets ``demand.rou.xml`` (its scenario's demand for its seed) and a ``.sumocfg`` that opens both in
+sumo-gui.
 
 Run:  python sumo_scenarios/generate_junctions.py
 """
@@ -11,8 +13,11 @@ Run:  python sumo_scenarios/generate_junctions.py
 from __future__ import annotations
 
 import math
+import tempfile
 from pathlib import Path
 
+from nrtraffic import scenario
+from nrtraffic.engine import Engine
 from nrtraffic.sumo.netbuild import build_network
 
 HERE = Path(__file__).resolve().parent
@@ -47,9 +52,22 @@ def write(name: str, arms: dict[str, tuple[float, float]], shapes: dict[str, lis
     (d / "net.nod.xml").write_text("<nodes>\n" + "\n".join(nodes) + "\n</nodes>\n")
     (d / "net.edg.xml").write_text("<edges>\n" + "\n".join(edges) + "\n</edges>\n")
     build_network(d / "net.nod.xml", d / "net.edg.xml", d / "net.net.xml")
+    write_view(name)
+
+
+def write_view(name: str) -> None:
+    """``demand.rou.xml`` and ``<name>.sumocfg`` of a scenario folder."""
+    d = HERE / name
+    # the scenario's demand for its own seed and duration, to watch under SUMO's own driving
+    # (the junction as netconvert built it); runs are driven by `nrtraffic run`
+    sc = scenario.load(d / "scenario.toml")
+    with tempfile.TemporaryDirectory() as tmp:
+        Engine(sc, Path(tmp)).write_demand(d / "demand.rou.xml")
     (d / f"{name}.sumocfg").write_text(
-        "<configuration>\n    <!-- For viewing the network in sumo-gui; runs are driven by `nrtraffic run`. -->\n"
-        '    <input>\n        <net-file value="net.net.xml"/>\n    </input>\n'
+        "<configuration>\n    <!-- sumo-gui -c: the network with the scenario's demand for its seed, driven by SUMO;\n"
+        "         runs are driven by `nrtraffic run` (make nets writes this file and demand.rou.xml) -->\n"
+        '    <input>\n        <net-file value="net.net.xml"/>\n        <route-files value="demand.rou.xml"/>\n'
+        '    </input>\n'
         '    <processing>\n        <lateral-resolution value="0.25"/>\n    </processing>\n</configuration>\n'
     )
 

@@ -332,3 +332,18 @@ def test_a_sumo_demand_file_drives_a_controlled_run(tmp_path):
     assert len(done) > 10 and (done["plant_steps"] > 0).all() and done["max_tracking_error_m"].notna().all()
     assert {i.split(".")[0] for i in done.index} >= {"W_E", "E_W"}
     assert res.summary["collisions"] == 0 and res.summary["demand_veh_h"] > 0
+
+
+@pytest.mark.parametrize("name", ["cross4", "tee3", "cross4_curved"])
+def test_scenario_folder_opens_with_its_demand(name, tmp_path):
+    """The scenario folder's .sumocfg opens its network with demand.rou.xml, which is the
+    scenario's demand for its seed (kept in sync: `make nets` writes it), and SUMO inserts it."""
+    folder = SCENARIOS / name
+    fresh = tmp_path / "demand.rou.xml"
+    Engine(scenario.load(folder / "scenario.toml"), tmp_path).write_demand(fresh)
+    assert fresh.read_text() == (folder / "demand.rou.xml").read_text()
+    proc = subprocess.run([sumo_binary("sumo"), "-c", str(folder / f"{name}.sumocfg"), "--end", "60",
+                           "--no-step-log", "true", "--duration-log.statistics", "true"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert int(proc.stdout.split("Inserted: ")[1].split()[0]) > 10
