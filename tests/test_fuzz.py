@@ -6,14 +6,12 @@ import math
 import shutil
 import tomllib
 
-import pytest
 import tomli_w
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from conftest import SCENARIOS
 from nrtraffic import scenario
-from nrtraffic.sumo.network import NetworkError
 from runners.cli import main
 
 SHIPPED = ("cross4", "tee3", "cross4_curved", "paper_curved", "paper_cbf")

@@ -2,7 +2,6 @@
 clear failure, and every bad flag or file is refused with exit 2 and a message naming it."""
 
 import json
-import os
 import signal
 import subprocess
 import sys

@@ -4,7 +4,6 @@ window, the movement table, SUMO's wait to insert, and a run directory that open
 import math
 import subprocess
 import xml.etree.ElementTree as ET
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
