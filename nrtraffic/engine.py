@@ -300,16 +300,13 @@ class Engine:
         ``queues.xml`` (:meth:`approach_table`); the SUMO arguments that load them."""
         if not self.sc.junction.id:
             return ()
-        import sumolib
+        from nrtraffic.sumo.network import edge_lanes
 
-        net = sumolib.net.readNet(str(self.network_path))
         out = (self.workdir / "queues.xml").resolve()
         lines = ["<additional>"]
-        for appr in sorted({a for a, _, _ in self.movement_table.values()}):
-            for lane in net.getEdge(appr).getLanes():
-                lines.append(f'    <laneAreaDetector id="queue|{appr}|{lane.getID()}" lanes="{lane.getID()}" pos="0" '
-                             f'endPos="{lane.getLength():.3f}" friendlyPos="true" period="{self.QUEUE_PERIOD_S:g}" '
-                             f'file="{out}"/>')
+        for appr, lane, length in edge_lanes(self.network_path, sorted({a for a, _, _ in self.movement_table.values()})):
+            lines.append(f'    <laneAreaDetector id="queue|{appr}|{lane}" lanes="{lane}" pos="0" '
+                         f'endPos="{length:.3f}" friendlyPos="true" period="{self.QUEUE_PERIOD_S:g}" file="{out}"/>')
         lines.append("</additional>")
         path = sdir / "queues.add.xml"
         path.write_text("\n".join(lines) + "\n")

@@ -107,3 +107,11 @@ def check_sumo_args(args: tuple[str, ...]) -> None:
     bad = [a for a in bad if a[2:].split("=")[0] not in known]
     if bad:
         raise NetworkError(f"sumo.extra_args: SUMO has no option {', '.join(bad)}")
+
+
+def edge_lanes(net_path: Path, edges) -> list[tuple[str, str, float]]:
+    """``(edge, lane id, lane length [m])`` of every lane of ``edges``, from the network file."""
+    import sumolib
+
+    net = sumolib.net.readNet(str(net_path))
+    return [(e, lane.getID(), lane.getLength()) for e in edges for lane in net.getEdge(e).getLanes()]
