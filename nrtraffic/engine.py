@@ -29,7 +29,7 @@ from nrtraffic.geometry import LanePath, segment_frames, touching_pairs
 from nrtraffic.planning.conflicts import MovementGeometry, classify, conflict_areas
 from nrtraffic.planning.coordinator import REAR_END_TOL_M, Coordinator, Request, ScheduleInfeasible
 from nrtraffic.planning.profiles import packed_position
-from nrtraffic.results import VEHICLE_COLUMNS, RunResult, TrajectoryWriter
+from nrtraffic.results import VEHICLE_COLUMNS, RunResult, TrajectoryWriter, parse_queues
 from nrtraffic.scenario import TURNS, Scenario
 from nrtraffic.sumo.adapter import SumoSession, VehicleType, sumo_version, write_routes, write_sumocfg
 from nrtraffic.sumo.network import junction_movements
@@ -96,30 +96,6 @@ class Movement:
     def s_of(self, lane: str, pos: float) -> float:
         off, scale = self.lane_offset[lane]
         return off + pos * scale
-
-
-QUEUE_COLUMNS = ["approach", "begin_s", "end_s", "mean_queue_veh", "max_queue_veh", "mean_queue_m", "max_queue_m"]
-
-
-def parse_queues(path: Path) -> pd.DataFrame:
-    """Queues per approach and detector period from SUMO's lane-area detectors (``queues.xml``,
-    detector ids ``queue|approach|lane``): ``mean_queue_veh`` is SUMO's time-mean of the longest jam
-    (``meanMaxJamLengthInVehicles``), ``max_queue_veh`` the longest (``maxJamLengthInVehicles``),
-    each summed over the approach's lanes; the same in metres."""
-    import xml.etree.ElementTree as ET
-
-    if not Path(path).is_file():
-        return pd.DataFrame(columns=QUEUE_COLUMNS)
-    try:
-        root = ET.parse(path).getroot()
-    except ET.ParseError:  # a run that stopped early may leave it unterminated
-        return pd.DataFrame(columns=QUEUE_COLUMNS)
-    rows = [(iv.get("id").split("|")[1], float(iv.get("begin")), float(iv.get("end")),
-             float(iv.get("meanMaxJamLengthInVehicles")), float(iv.get("maxJamLengthInVehicles")),
-             float(iv.get("meanMaxJamLengthInMeters")), float(iv.get("maxJamLengthInMeters")))
-            for iv in root.iter("interval")]
-    df = pd.DataFrame(rows, columns=QUEUE_COLUMNS)
-    return df.groupby(["approach", "begin_s", "end_s"], as_index=False).sum()
 
 
 @dataclass
@@ -304,7 +280,8 @@ class Engine:
 
         out = (self.workdir / "queues.xml").resolve()
         lines = ["<additional>"]
-        for appr, lane, length in edge_lanes(self.network_path, sorted({a for a, _, _ in self.movement_table.values()})):
+        approaches = sorted({a for a, _, _ in self.movement_table.values()})
+        for appr, lane, length in edge_lanes(self.network_path, approaches):
             lines.append(f'    <laneAreaDetector id="queue|{appr}|{lane}" lanes="{lane}" pos="0" '
                          f'endPos="{length:.3f}" friendlyPos="true" period="{self.QUEUE_PERIOD_S:g}" file="{out}"/>')
         lines.append("</additional>")
@@ -504,6 +481,7 @@ class Engine:
             # entered so far, not with the whole demand of the run
             self._scheduled = {vid: (mv, t, speed) for vid, mv, t, speed, _ in demand}
             self._all_departures = dict(self._scheduled)
+            self._listed = {v.id: v for v in self.sc.vehicles}
             copy = sdir / self.network_path.name  # the run directory's own copy, where there is one
             write_sumocfg(sdir / "run.sumocfg", copy if copy.is_file() else self.network_path, routes,
                           self.sc.sumo.step_length_s)
@@ -709,7 +687,7 @@ class Engine:
         if vid not in self._scheduled:
             return None
         mv, t, speed = self._scheduled.pop(vid)
-        lv = next((v for v in self.sc.vehicles if v.id == vid), None)
+        lv = self._listed.get(vid)
         rec = self.records[vid] = VehicleRecord(
             vid, self.movement_table[mv][0], t, movement=mv, v_free=speed,
             controlled=(lv.controlled if lv else True) and self.control,
@@ -757,8 +735,7 @@ class Engine:
         try:
             if req.D <= 0.5:
                 raise ScheduleInfeasible(f"vehicle {vid} is already at the merging zone")
-            asg = self.coord.schedule(vid, req.lane, req.t0, req.v0, req.D, req.movement, req.zone_length_m,
-                                      req.v_limit)
+            asg = self.coord.schedule_request(req)
         except ScheduleInfeasible:
             self._hold(vid)
             return "held"
@@ -1122,7 +1099,7 @@ class Engine:
         w0, w1 = o.warmup_s, (o.measure_end_s or sim_t)
         w1 = min(w1, sim_t)
         # the measurement window: vehicles that entered the control zone inside it
-        inside = veh["t_arrive_s"].between(w0, w1) if (w0 > 0 or o.measure_end_s) else veh["t_arrive_s"].notna()
+        inside = veh["t_arrive_s"].between(w0, w1)
         adm = veh[veh["t_enter_s"].notna() & inside]
         done = veh[veh["t_exit_s"].notna() & inside]
         steps = adm["plant_steps"].sum()
@@ -1155,7 +1132,8 @@ class Engine:
             "mean_wait_to_enter_s": float(np.mean([sim_t - t for t in due])) if due else None,
             "mean_depart_delay_s": metrics.mean_or_none(done["depart_delay_s"]),
             "mean_delay_s": mean_delay,
-            "los": metrics.level_of_service(mean_delay, self.label == "traffic_light") if mean_delay is not None else None,
+            "los": (metrics.level_of_service(mean_delay, metrics.is_signalised(self.label))
+                    if mean_delay is not None else None),
             "mean_sumo_time_loss_s": metrics.mean_or_none(done["sumo_time_loss_s"]),
             "vehicles_held": int((veh.loc[inside, "t_held_s"] > 0).sum()),
             "plans_rear_end_constrained": int((adm["profile"] == "rear_end").sum()),

@@ -197,16 +197,21 @@ class Coordinator:
         ------
         ScheduleInfeasible : the required merge time is later than the bounds allow.
         """
-        t_m, binding, pred, relation, prev, _ = self._merge_time(lane, t0, v0, D, movement, zone_length_m, v_limit)
-        prof = self._profile(vehicle_id, t0, v0, D, t_m, v_limit)
+        return self.schedule_request(Request(vehicle_id, lane, t0, v0, D, movement, zone_length_m, v_limit))
+
+    def schedule_request(self, r: Request) -> Assignment:
+        """:meth:`schedule` for a :class:`Request`."""
+        vehicle_id, lane, t0, v0, D, movement = r.vehicle_id, r.lane, r.t0, r.v0, r.D, r.movement
+        t_m, binding, pred, relation, prev, _ = self._merge_time(r)
+        prof = self._profile(vehicle_id, t0, v0, D, t_m, r.v_limit)
         intrusion = float("nan")
         if prev is not None:
             prof, intrusion = self._keep_behind(prof, prev, t0, v0, D, t_m)
-        t_exit = t_m + zone_length_m / prof.v_m
+        t_exit = t_m + r.zone_length_m / prof.v_m
         a = Assignment(vehicle_id, lane, t0, t_m, prof, pred, relation, binding, movement, t_exit, intrusion)
         self._last_on_lane[lane] = a
         if self.settings.conflict_model == "conflict_points":
-            self._reserved = [r for r in self._reserved if r.t_exit + self.settings.conflict_margin_s > t0] + [a]
+            self._reserved = [x for x in self._reserved if x.t_exit + self.settings.conflict_margin_s > t0] + [a]
         prev_m = self._last_on_movement.get(movement)
         if prev_m is None or t_exit > prev_m.t_exit:
             self._last_on_movement[movement] = a
@@ -223,11 +228,11 @@ class Coordinator:
             t_min = earliest_fixed(v0, min(v_limit, b.v_max_mps), D, b, v_cruise)
         return t_min
 
-    def _merge_time(self, lane: str, t0: float, v0: float, D: float, movement: str, zone_length_m: float,
-                    v_limit: float, extra: tuple = ()):
+    def _merge_time(self, r: Request, extra: tuple = ()):
         """The merge time the rules give, without committing it: ``(t_m, binding, predecessor,
         relation, lane leader's assignment or None, earliest merge time)``. ``extra``: tentative
         reservations ``(vehicle_id, movement, t_merge, v_m)`` counted besides the committed ones."""
+        lane, t0, v0, D, movement, zone_length_m, v_limit = r.lane, r.t0, r.v0, r.D, r.movement, r.zone_length_m, r.v_limit
         b = self.bounds
         t_early = t0 + self._earliest(v0, D, v_limit)
         t_m, binding, pred = t_early, "earliest", None
@@ -287,8 +292,7 @@ class Coordinator:
                 chosen = min(heads, key=lambda c: (self._batch_cost(c, heads), rank[c.vehicle_id]))
             queue = queues[chosen.lane]
             try:
-                a = self.schedule(chosen.vehicle_id, chosen.lane, chosen.t0, chosen.v0, chosen.D, chosen.movement,
-                                  chosen.zone_length_m, chosen.v_limit)
+                a = self.schedule_request(chosen)
             except ScheduleInfeasible as exc:
                 for r in queue:  # its lane waits behind it, and keeps its counts for the next batch
                     done.append((r, exc if r is chosen else ScheduleInfeasible(
@@ -309,13 +313,12 @@ class Coordinator:
 
     def _batch_cost(self, c: Request, heads: list[Request]) -> float:
         """Time lost [s] by ``c`` and by the other lanes' first vehicles if ``c`` is served next."""
-        t_m, *_, t_early = self._merge_time(c.lane, c.t0, c.v0, c.D, c.movement, c.zone_length_m, c.v_limit)
+        t_m, *_, t_early = self._merge_time(c)
         cost = t_m - t_early
         mine = ((c.vehicle_id, c.movement, t_m, min(c.v_limit, self.bounds.v_max_mps)),)
         for h in heads:
             if h is not c:
-                t_h, *_, e_h = self._merge_time(h.lane, h.t0, h.v0, h.D, h.movement, h.zone_length_m, h.v_limit,
-                                                extra=mine)
+                t_h, *_, e_h = self._merge_time(h, extra=mine)
                 cost += t_h - e_h
         return cost
 
