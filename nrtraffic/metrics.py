@@ -55,6 +55,12 @@ LOS_SIGNALISED = (10.0, 20.0, 35.0, 55.0, 80.0)
 LOS_UNSIGNALISED = (10.0, 15.0, 25.0, 35.0, 50.0)
 
 
+def is_signalised(control: str) -> bool:
+    """Whether a run's control (summary.json ``control``) is judged by the signalised HCM
+    thresholds: SUMO's traffic light; nrtraffic and the unsignalised baselines are not."""
+    return control == "traffic_light"
+
+
 def level_of_service(delay_s: float, signalised: bool) -> str:
     """HCM level-of-service letter of a mean delay [s]: the signalised thresholds for a traffic
     light, the unsignalised (two-way and all-way stop) ones otherwise."""

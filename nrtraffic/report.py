@@ -25,7 +25,8 @@ def run_figures(run_dir: Path) -> list[Path]:
     delay per movement with the LOS bands (``delays.png``), queues per approach (``queues.png``) and
     the time-space diagram of the controlled vehicles (``time_space.png``)."""
     from nrtraffic import plots
-    from nrtraffic.results import read_trajectories
+    from nrtraffic.metrics import is_signalised
+    from nrtraffic.results import parse_queues, read_trajectories
 
     run_dir = Path(run_dir)
     made = []
@@ -37,10 +38,8 @@ def run_figures(run_dir: Path) -> list[Path]:
     if mv.is_file():
         table = pd.read_csv(mv)
         if (table["vehicles"] > 0).any():
-            made.append(plots.delay_by_movement(table, run_dir / "delays.png", summary.get("control") == "traffic_light"))
+            made.append(plots.delay_by_movement(table, run_dir / "delays.png", is_signalised(summary.get("control"))))
     if (run_dir / "queues.xml").is_file():
-        from nrtraffic.engine import parse_queues
-
         series = parse_queues(run_dir / "queues.xml")
         if len(series):
             made.append(plots.queues(series, run_dir / "queues.png", summary.get("measure_from_s") or 0.0))
@@ -97,18 +96,10 @@ def run_report(run_dir: Path) -> Path:
     return out
 
 
-def sweep_report(out_dir: Path) -> Path:
-    """``report.html`` of a sweep: its table (sweep.md's rows) and figures."""
+def sweep_report(out_dir: Path, note: str, table: pd.DataFrame) -> Path:
+    """``report.html`` of a sweep: its table (``note`` and ``table``, as in sweep.md) and figures."""
     out_dir = Path(out_dir)
-    body = []
-    md = out_dir / "sweep.md"
-    if md.is_file():
-        lines = md.read_text().splitlines()
-        note = [ln for ln in lines if ln and not ln.startswith("|")]
-        rows = [ln.strip("|").split("|") for ln in lines if ln.startswith("|") and not ln.startswith("|---")]
-        if rows:
-            df = pd.DataFrame([[c.strip() for c in r] for r in rows[1:]], columns=[c.strip() for c in rows[0]])
-            body += [f"<p class='note'>{html.escape(' '.join(note))}</p>", _table(df)]
+    body = [f"<p class='note'>{html.escape(note)}</p>", _table(table)]
     for f in ("sweep.png", "sweep_seeds.png"):
         if (out_dir / f).is_file():
             body.append(_img(out_dir / f))

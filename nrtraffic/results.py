@@ -168,9 +168,31 @@ def write_summary(path: Path, summary: dict) -> None:
 
 
 def write_vehicles(path: Path, vehicles: pd.DataFrame) -> None:
-    tmp = Path(path).with_suffix(".csv.tmp")
-    vehicles.to_csv(tmp, index=False, float_format="%.6g")
-    tmp.replace(path)
+    write_table(path, vehicles)
+
+
+QUEUE_COLUMNS = ["approach", "begin_s", "end_s", "mean_queue_veh", "max_queue_veh", "mean_queue_m", "max_queue_m"]
+
+
+def parse_queues(path: Path) -> pd.DataFrame:
+    """Queues per approach and detector period from SUMO's lane-area detectors (``queues.xml``,
+    detector ids ``queue|approach|lane``): ``mean_queue_veh`` is SUMO's time-mean of the longest jam
+    (``meanMaxJamLengthInVehicles``), ``max_queue_veh`` the longest (``maxJamLengthInVehicles``),
+    each summed over the approach's lanes; the same in metres."""
+    import xml.etree.ElementTree as ET
+
+    if not Path(path).is_file():
+        return pd.DataFrame(columns=QUEUE_COLUMNS)
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError:  # a run that stopped early may leave it unterminated
+        return pd.DataFrame(columns=QUEUE_COLUMNS)
+    rows = [(iv.get("id").split("|")[1], float(iv.get("begin")), float(iv.get("end")),
+             float(iv.get("meanMaxJamLengthInVehicles")), float(iv.get("maxJamLengthInVehicles")),
+             float(iv.get("meanMaxJamLengthInMeters")), float(iv.get("maxJamLengthInMeters")))
+            for iv in root.iter("interval")]
+    df = pd.DataFrame(rows, columns=QUEUE_COLUMNS)
+    return df.groupby(["approach", "begin_s", "end_s"], as_index=False).sum()
 
 
 def write_table(path: Path, table: pd.DataFrame) -> None:
@@ -183,7 +205,7 @@ def write_table(path: Path, table: pd.DataFrame) -> None:
 def write_movements(path: Path, result: "RunResult") -> pd.DataFrame:
     """``movements.csv``: the per-movement table of a run (:func:`nrtraffic.metrics.movement_table`)
     over its measurement window."""
-    from nrtraffic.metrics import movement_table
+    from nrtraffic.metrics import is_signalised, movement_table
 
     s = result.summary
     known = ()
@@ -191,7 +213,7 @@ def write_movements(path: Path, result: "RunResult") -> pd.DataFrame:
     if doc_path.is_file():
         known = [(m["approach"], m["turn"]) for m in json.loads(doc_path.read_text())["movements"].values()]
     table = movement_table(result.vehicles, s.get("measure_from_s") or 0.0, s.get("measure_to_s") or 0.0,
-                           s.get("control") == "traffic_light", known)
+                           is_signalised(s.get("control")), known)
     write_table(path, table)
     return table
 

@@ -317,9 +317,10 @@ def _print_summary(s: dict, out: Path) -> None:
 
         m = pd.read_csv(table)
         if len(m):
+            thresholds = m["los_thresholds"].iloc[0]
             m = m.drop(columns=["los_thresholds"]).round({"throughput_veh_h": 0, "mean_delay_s": 1, "p95_delay_s": 1,
                                                           "stops_per_vehicle": 2, "fuel_ml_per_vehicle": 1})
-            print(f"\nper movement (movements.csv; LOS by the {'signalised' if s.get('control') == 'traffic_light' else 'unsignalised'} HCM thresholds):")
+            print(f"\nper movement (movements.csv; LOS by the {thresholds} HCM thresholds):")
             print(m.to_string(index=False, na_rep="-"))
     print(f"run directory: {out}")
 

@@ -366,17 +366,20 @@ def write_tables(df: pd.DataFrame, out: Path) -> None:
     df.to_csv(out / "sweep.csv", index=False)
     summ = summarize(df)
     summ.to_csv(out / "sweep_summary.csv", index=False)
-    (out / "sweep.md").write_text(markdown(summ, df))
+    note, tab = table(summ, df)
+    (out / "sweep.md").write_text(markdown(note, tab))
     if len(summ) and (summ["runs"] > 0).any():
         figure(summ, out / "sweep.png")
         seed_figure(df, out / "sweep_seeds.png")
     from nrtraffic.report import sweep_report
 
-    sweep_report(out)
+    sweep_report(out, note, tab)
 
 
-def markdown(summ: pd.DataFrame, df: pd.DataFrame) -> str:
-    from nrtraffic.metrics import level_of_service
+def table(summ: pd.DataFrame, df: pd.DataFrame) -> tuple[str, pd.DataFrame]:
+    """The study table (the one in sweep.md and report.html): a note saying what it shows, and one
+    row of formatted cells per grid point and control."""
+    from nrtraffic.metrics import is_signalised, level_of_service
 
     keys = grid_keys(summ)
     seeds = sorted(df["seed"].unique())
@@ -386,18 +389,17 @@ def markdown(summ: pd.DataFrame, df: pd.DataFrame) -> str:
     if "measure_from_s" in df and df["measure_from_s"].notna().any():
         window = (f" Figures count the vehicles that entered the control zone from "
                   f"{df['measure_from_s'].min():g} s to the end of the run (warm-up excluded).")
-    lines = [f"Mean over seeds {seeds[0]}-{seeds[-1]} ({len(seeds)} seeds) with the 95 % confidence half-width; "
+    note = (f"Mean over seeds {seeds[0]}-{seeds[-1]} ({len(seeds)} seeds) with the 95 % confidence half-width; "
              "collisions are totals over the runs. Delay includes the wait to enter the network (SUMO's "
              "departDelay) where the queue backed up to the insertion point. LOS: HCM level of service of the "
              "mean delay (signalised thresholds for the traffic light, unsignalised ones for the others)"
              + ("; served: throughput as a share of the demand" if served else "")
              + ("; not in: demand due by the end that SUMO could not yet insert, per run" if waiting else "")
-             + "." + window, "",
-             "| " + " | ".join(keys + ["control", "runs (failed)", "throughput [veh/h]"] + (["served"] if served else [])
-                               + (["not in"] if waiting else [])
-                               + ["delay [s]", "LOS", "SUMO timeLoss [s]", "fuel [mL/veh]",
-                                  "collisions: SUMO / own check"]) + " |",
-             "|" + "---|" * (len(keys) + 8 + int(served) + int(waiting))]
+             + "." + window)
+    columns = (keys + ["control", "runs (failed)", "throughput [veh/h]"] + (["served"] if served else [])
+               + (["not in"] if waiting else [])
+               + ["delay [s]", "LOS", "SUMO timeLoss [s]", "fuel [mL/veh]", "collisions: SUMO / own check"])
+    rows = []
 
     def f(r, k, nd=1):
         m, c = r.get(f"{k}_mean", math.nan), r.get(f"{k}_ci95", math.nan)
@@ -419,10 +421,17 @@ def markdown(summ: pd.DataFrame, df: pd.DataFrame) -> str:
         delay = r.get("mean_delay_s_mean", math.nan)
         cells = [f"{r[k]}" for k in keys] + [
             r["control"], f"{r['runs']} ({r['failed']})", f(r, "throughput_veh_h", 0), *extra, f(r, "mean_delay_s"),
-            level_of_service(delay, r["control"] == "traffic_light"),
+            level_of_service(delay, is_signalised(r["control"])),
             f(r, "mean_sumo_time_loss_s"), f(r, "mean_fuel_ml"),
             f"{total(r, 'collisions')} / {total(r, 'collisions_geometric')}"]
-        lines.append("| " + " | ".join(cells) + " |")
+        rows.append(cells)
+    return note, pd.DataFrame(rows, columns=columns)
+
+
+def markdown(note: str, tab: pd.DataFrame) -> str:
+    """sweep.md: the note and the table of :func:`table`."""
+    lines = [note, "", "| " + " | ".join(tab.columns) + " |", "|" + "---|" * len(tab.columns)]
+    lines += ["| " + " | ".join(map(str, row)) + " |" for row in tab.itertuples(index=False)]
     return "\n".join(lines) + "\n"
 
 
