@@ -226,10 +226,6 @@ class Demand:
             raise ScenarioError("demand.max_vehicles must be >= 0")
         if self.rate_veh_h < 0:
             raise ScenarioError("demand.rate_veh_h must be >= 0")
-        if self.rate_veh_h > 0 and 3600.0 / self.rate_veh_h <= self.min_headway_s:
-            raise ScenarioError(
-                f"demand.rate_veh_h = {self.rate_veh_h} needs a mean headway above demand.min_headway_s = {self.min_headway_s} s"
-            )
         if not (0 <= self.turn_left <= 1 and 0 <= self.turn_right <= 1 and self.turn_left + self.turn_right <= 1):
             raise ScenarioError("demand.turn_left and demand.turn_right must be shares in [0, 1] summing to <= 1")
         names = [f.approach for f in self.flows]
@@ -239,14 +235,15 @@ class Demand:
         for a, b in zip(ivs, ivs[1:]):
             if b.begin_s < a.end_s:
                 raise ScenarioError(f"demand.intervals [{a.begin_s}, {a.end_s}] s and [{b.begin_s}, {b.end_s}] s overlap")
+        # every approach's rate, at the peak of the intervals, must leave room above the minimum headway
         peak = max([i.scale for i in self.intervals] + [1.0])
-        for f in self.flows:
-            if f.total_veh_h * peak > 0 and 3600.0 / (f.total_veh_h * peak) <= self.min_headway_s:
-                raise ScenarioError(f"demand.flows.{f.approach}: {f.total_veh_h * peak:g} veh/h (at the peak scale "
-                                    f"{peak:g}) needs a mean headway above demand.min_headway_s = {self.min_headway_s} s")
-        if self.rate_veh_h > 0 and not self.flows and 3600.0 / (self.rate_veh_h * peak) <= self.min_headway_s:
-            raise ScenarioError(f"demand.rate_veh_h = {self.rate_veh_h} at the peak scale {peak:g} needs a mean "
-                                f"headway above demand.min_headway_s = {self.min_headway_s} s")
+        rates = [(f"demand.flows.{f.approach}", f.total_veh_h) for f in self.flows] or [("demand.rate_veh_h",
+                                                                                        self.rate_veh_h)]
+        for key, rate in rates:
+            if rate * peak > 0 and 3600.0 / (rate * peak) <= self.min_headway_s:
+                at_peak = f" at the peak scale {peak:g}" if peak != 1.0 else ""
+                raise ScenarioError(f"{key} = {rate:g} veh/h{at_peak} needs a mean headway above "
+                                    f"demand.min_headway_s = {self.min_headway_s} s")
 
     def scale_at(self, t: float) -> float:
         """The demand's scale at time ``t`` [s] (1 outside every interval)."""

@@ -38,7 +38,7 @@ def _engine(overrides, tmp_path, duration=3600.0, seed=5):
     ('demand.flows=[{approach="N_in", straight="many"}]', "demand.flows.straight must be a number"),
     ("demand.flows=5", "must be an array of tables"),
     ('demand.flows=[{approach="N_in", straight=100.0}, {approach="N_in", left=5.0}]', "each approach once"),
-    ('demand.flows=[{approach="N_in", straight=3000.0}]', "demand.flows.N_in: 3000 veh/h"),
+    ('demand.flows=[{approach="N_in", straight=3000.0}]', "demand.flows.N_in = 3000 veh/h needs a mean headway"),
     ("demand.intervals=[{begin_s=100.0, end_s=50.0}]", "begin_s < end_s"),
     ("demand.intervals=[{begin_s=0.0, end_s=50.0, scale=-1.0}]", "scale must be >= 0"),
     ("demand.intervals=[{begin_s=0.0, end_s=100.0}, {begin_s=50.0, end_s=150.0}]", "overlap"),
@@ -75,9 +75,14 @@ def test_flows_give_each_movement_its_count(tmp_path):
             expect = 4 * q
             assert abs(counts.get(f"{appr}.{turn}", 0) - expect) < 4 * math.sqrt(expect) + 2, (appr, turn)
     assert e.demand_veh_h(0.0, 3600.0) == pytest.approx(1500.0)
-    # the old keys still work, and their draws are those of before (the global shares)
-    old = _engine(["demand.rate_veh_h=400.0"], tmp_path, duration=600.0)._demand()
-    assert {mv.split(".")[1] for _, mv, *_ in old} == {"left", "straight", "right"}
+    # the old keys still work: one rate for every approach, turns by the global shares (cross4: 20 %
+    # left, 20 % right), each count within 4 sd of its binomial expectation
+    old = _engine(["demand.rate_veh_h=400.0"], tmp_path, duration=4 * 3600.0)._demand()
+    turns = pd.Series([mv.split(".")[1] for _, mv, *_ in old]).value_counts()
+    n = len(old)
+    assert abs(n - 4 * 4 * 400) < 4 * math.sqrt(4 * 4 * 400)
+    for turn, share in (("left", 0.2), ("right", 0.2), ("straight", 0.6)):
+        assert abs(turns[turn] - share * n) < 4 * math.sqrt(n * share * (1 - share)), turn
 
 
 def test_an_interval_scales_the_demand_inside_it(tmp_path):
