@@ -55,14 +55,14 @@ class Sumo:
     """``[sumo]``: SUMO's own settings."""
 
     step_length_s: float = 0.1  # SUMO step [s] (a whole multiple of controller.plant_step_s)
-    lateral_resolution_m: float = 0.25  # sublane model: needed for exact moveToXY placement
+    lateral_resolution_m: float = 0.0  # sublane width [m]; 0: no sublane model (moveToXY places exactly either way)
     extra_args: tuple[str, ...] = ()  # further SUMO options, e.g. ["--time-to-teleport", "-1"]
 
     def validate(self) -> None:
         if not (0 < self.step_length_s <= 1.0):
             raise ScenarioError("sumo.step_length_s must be in (0, 1]")
-        if self.lateral_resolution_m <= 0:
-            raise ScenarioError("sumo.lateral_resolution_m must be > 0 (moveToXY needs the sublane model)")
+        if self.lateral_resolution_m < 0:
+            raise ScenarioError("sumo.lateral_resolution_m must be >= 0 (0: no sublane model)")
 
 
 @dataclass(frozen=True)

@@ -67,8 +67,7 @@ def write_view(name: str) -> None:
         "<configuration>\n    <!-- sumo-gui -c: the network with the scenario's demand for its seed, driven by SUMO;\n"
         "         runs are driven by `nrtraffic run` (make nets writes this file and demand.rou.xml) -->\n"
         '    <input>\n        <net-file value="net.net.xml"/>\n        <route-files value="demand.rou.xml"/>\n'
-        '    </input>\n'
-        '    <processing>\n        <lateral-resolution value="0.25"/>\n    </processing>\n</configuration>\n'
+        '    </input>\n</configuration>\n'
     )
 
 

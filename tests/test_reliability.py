@@ -176,7 +176,7 @@ def _scenario_copy(tmp_path, old=None, new=None, extra=""):
      "'nowhere' is not in it"),
     ('preset = "paper"', 'preset = "paper"\nlength = 1e6', "", "beyond a road vehicle"),
     ("trajectory_interval_s = 0.5", "trajectory_interval_s = 0.25", "", "whole multiple of sumo.step_length_s"),
-    ("lateral_resolution_m = 0.25", 'lateral_resolution_m = 0.25\nextra_args = ["--no-such-option", "1"]', "",
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--no-such-option", "1"]', "",
      "no option --no-such-option"),
 ])
 def test_scenarios_that_would_run_wrong_exit_2_naming_the_problem(old, new, extra, message, tmp_path, capsys):

@@ -16,11 +16,13 @@ def test_nav_angle_round_trip():
     assert nav_angle(0.0) == 90.0 and nav_angle(math.pi / 2) == 0.0
 
 
-def test_pushed_pose_and_speed_are_what_sumo_reports(tmp_path, paper_curved_path):
+@pytest.mark.parametrize("sublane_m", [0.0, 0.25])
+def test_pushed_pose_and_speed_are_what_sumo_reports(tmp_path, paper_curved_path, sublane_m):
+    """With or without SUMO's sublane model (``keepRoute=3`` places exactly either way)."""
     net = paper_curved_path.parent / "curved.net.xml"
     routes = tmp_path / "r.rou.xml"
     write_routes(routes, VehicleType(), {"main": ("lead_in", "road", "exit")}, [("v", "main", 0.0, 13.4)])
-    with SumoSession(net, routes, 0.1, 7, tripinfo=tmp_path / "ti.xml") as sumo:
+    with SumoSession(net, routes, 0.1, 7, lateral_resolution_m=sublane_m, tripinfo=tmp_path / "ti.xml") as sumo:
         sumo.step()
         assert "v" in sumo.departed() and "v" in sumo.vehicle_ids()
         sumo.take_over("v")
@@ -54,6 +56,53 @@ def test_pushed_pose_and_speed_are_what_sumo_reports(tmp_path, paper_curved_path
             if sumo.pending() == 0:
                 break
         assert sumo.pending() == 0
+
+
+@pytest.mark.parametrize("sublane_m", [0.0, 0.25])
+def test_pushed_left_turn_keeps_route_and_exact_pose(tmp_path, sublane_m):
+    """A vehicle placed off the lane centre along cross4's left turn N -> E, through both pieces of
+    its internal lane: SUMO reports the pose pushed (not the lane centre), keeps it on its route's
+    lanes, and, released, drives it out on its own route."""
+    from conftest import SCENARIOS
+
+    net = SCENARIOS / "cross4" / "net.net.xml"
+    routes = tmp_path / "r.rou.xml"
+    write_routes(routes, VehicleType(), {"l": ("N_in", "E_out")}, [("v", "l", 0.0, 10.0)])
+    with SumoSession(net, routes, 0.1, 3, lateral_resolution_m=sublane_m, tripinfo=tmp_path / "ti.xml") as sumo:
+        lanes = sumo.route_lanes(("N_in", "E_out"))
+        pts = np.concatenate([np.asarray(shape) for _, shape, _ in lanes])
+        seg = np.hypot(*np.diff(pts, axis=0).T)
+        s_pts = np.concatenate([[0.0], np.cumsum(seg)])
+        sumo.step()
+        sumo.departed()
+        sumo.take_over("v")
+        n_in = len(lanes[0][1])  # points of the approach lane; the turn starts at its end
+        s_turn = s_pts[n_in - 1]
+        seen = set()
+        for k, s in enumerate(np.arange(s_turn - 40.0, s_turn + 60.0, 0.8)):
+            x0, y0 = np.interp(s, s_pts, pts[:, 0]), np.interp(s, s_pts, pts[:, 1])
+            x1, y1 = np.interp(s + 0.5, s_pts, pts[:, 0]), np.interp(s + 0.5, s_pts, pts[:, 1])
+            psi = math.atan2(y1 - y0, x1 - x0)
+            lat = 0.5 * math.sin(0.3 * k)  # off the centre line by up to 0.5 m, either side
+            x, y = x0 - lat * math.sin(psi), y0 + lat * math.cos(psi)
+            sumo.push_pose("v", x, y, psi, 8.0)
+            sumo.step()
+            xs, ys, psis = sumo.front_pose("v")
+            assert (xs, ys) == pytest.approx((x, y), abs=1e-3) and psis == pytest.approx(psi, abs=1e-4)
+            lane, _ = sumo.lane_position("v")
+            assert lane in {ln for ln, _, _ in lanes}
+            seen.add(lane)
+        assert sum(ln.startswith(":") for ln in seen) == 2  # both pieces of the turn were driven
+        sumo.release("v")
+        for _ in range(600):
+            sumo.step()
+            if sumo.pending() == 0:
+                break
+        assert sumo.pending() == 0 and sumo.collisions() == []
+    import xml.etree.ElementTree as ET
+
+    trip = ET.parse(tmp_path / "ti.xml").getroot().find("tripinfo")
+    assert trip.get("arrivalLane") == "E_out_0"
 
 
 def test_route_lanes_include_internal_lanes(tmp_path, paper_curved_path):

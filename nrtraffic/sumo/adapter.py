@@ -3,8 +3,11 @@
 One simulation per process (a libsumo limitation): a :class:`SumoSession` is a context manager and
 refuses to start while another session of the process is open.
 
-Poses are pushed with ``moveToXY(keepRoute=1)`` under the sublane model, which places the front
-bumper exactly (REFERENCE.md section 5); the true speed is set beside it (``setSpeedMode 0`` +
+Poses are pushed with ``moveToXY(keepRoute=3)``: bit 0 keeps the vehicle on its route (on the
+route's internal lanes, too), bit 1 places the front bumper at the exact position, lateral offset
+included, with or without the sublane model (``keepRoute=1`` needs the sublane model for that and
+snaps to the lane centre without it: REFERENCE.md section 5). Without sublanes SUMO's step costs
+about a third less (README, Performance). The true speed is set beside it (``setSpeedMode 0`` +
 ``setSpeed``), so that SUMO's timeLoss, emissions and followers see the real speed.
 """
 
@@ -18,6 +21,7 @@ import numpy as np
 
 _ACTIVE = None
 DEFAULT_SPEED_MODE = 31  # SUMO's default: all safety checks on
+KEEP_ROUTE_EXACT = 3  # moveToXY keepRoute bits: 1 keep the route, 2 the exact (lateral) position
 
 
 class SumoError(RuntimeError):
@@ -135,7 +139,7 @@ class SumoSession:
     net, routes : SUMO inputs.
     step_length_s : SUMO step [s].
     seed : SUMO's ``--seed``.
-    lateral_resolution_m : sublane width [m].
+    lateral_resolution_m : sublane width [m]; 0 runs without the sublane model (SUMO's default).
     tripinfo, collisions, fcd : output files (None: not written). A name ending in .csv or
         .parquet selects that format (SUMO's own writers).
     gui : run in sumo-gui (shipped with eclipse-sumo) through TraCI instead of libsumo, to watch
@@ -146,7 +150,7 @@ class SumoSession:
     COLOURS = {"approaching": (160, 160, 160, 255), "held": (220, 40, 40, 255), "pending": (240, 180, 0, 255),
                "controlled": (30, 110, 230, 255), "released": (40, 170, 60, 255)}
 
-    def __init__(self, net: Path, routes: Path, step_length_s: float, seed: int, lateral_resolution_m: float = 0.25,
+    def __init__(self, net: Path, routes: Path, step_length_s: float, seed: int, lateral_resolution_m: float = 0.0,
                  tripinfo: Path | None = None, collisions: Path | None = None, fcd: Path | None = None,
                  extra_args: tuple[str, ...] = (), gui: bool = False):
         self.gui = gui
@@ -156,7 +160,6 @@ class SumoSession:
             "--route-files", str(routes),
             "--step-length", repr(float(step_length_s)),
             "--seed", str(int(seed)),
-            "--lateral-resolution", repr(float(lateral_resolution_m)),
             "--collision.action", "warn",
             "--collision.check-junctions", "true",
             "--collision.mingap-factor", "0",
@@ -165,8 +168,10 @@ class SumoSession:
             "--duration-log.disable", "true",
             "--time-to-teleport", "-1",
         ]
+        if lateral_resolution_m > 0:
+            self.args += ["--lateral-resolution", repr(float(lateral_resolution_m))]
         if tripinfo is not None:
-            self.args += ["--tripinfo-output", str(tripinfo), "--device.emissions.probability", "1"]
+            self.args += ["--tripinfo-output", str(tripinfo)]
         if collisions is not None:
             self.args += ["--collision-output", str(collisions)]
         if fcd is not None:
@@ -250,6 +255,10 @@ class SumoSession:
             sub(vid, self._vars)
         return ids
 
+    def forget(self, vid: str) -> None:
+        """Leave a vehicle out of :meth:`snapshot` from the next step on (it stays in SUMO)."""
+        self.traci.vehicle.unsubscribe(vid)
+
     def depart_delay(self, vid: str) -> float:
         """How long SUMO waited to insert a vehicle past its desired departure (its lane was
         backed up) [s]; SUMO's departDelay."""
@@ -259,19 +268,15 @@ class SumoSession:
         """Lane, lane position, front-bumper pose, speed and acceleration of every vehicle in the
         network, from one batched read of SUMO's subscriptions (updated by every step)."""
         res = self.traci.vehicle.getAllSubscriptionResults()
-        n = len(res)
         ids = list(res)
-        lane = [""] * n
-        num = np.empty((n, 6))
         kl, kp, kxy, ka, kv, kacc = self._vars
-        for i, r in enumerate(res.values()):
-            lane[i] = r[kl]
-            xy = r[kxy]
-            num[i] = (r[kp], xy[0], xy[1], r[ka], r[kv], r[kacc])
+        rows = res.values()
+        lane = [r[kl] for r in rows]
+        num = np.array([(r[kp], *r[kxy], r[ka], r[kv], r[kacc]) for r in rows], dtype=float).reshape(-1, 6)
         ang = np.radians(num[:, 3])
         psi = np.arctan2(np.cos(ang), np.sin(ang))  # navigation angle -> heading (heading_from_nav)
         return VehicleTable(ids, lane, num[:, 0], num[:, 1], num[:, 2], psi, num[:, 4], num[:, 5],
-                            {v: i for i, v in enumerate(ids)})
+                            dict(zip(ids, range(len(ids)))))
 
     def arrived(self) -> tuple[str, ...]:
         return self.traci.simulation.getArrivedIDList()
@@ -361,7 +366,7 @@ class SumoSession:
                                     nav.tolist(), spd.tolist()):
             try:
                 set_speed(vid, sp)
-                move(vid, "", 0, x, y, a, 1)
+                move(vid, "", 0, x, y, a, KEEP_ROUTE_EXACT)
             except Exception as exc:
                 raise SumoError(f"moveToXY of {vid} failed at t={self.time:.2f} s: {exc}") from None
 
