@@ -523,6 +523,7 @@ class Engine:
         log_every = max(1, int(round(sc.outputs.trajectory_interval_s / dt)))
         self.batch_ids: list[str] = []
         self.uncontrolled: list[str] = []
+        self.released: list[str] = []  # handed back to SUMO, still read every step (_forget_far)
         self._pack_paths()
         self._alloc(0)
         approaching: list[str] = []
@@ -592,6 +593,8 @@ class Engine:
                 t4 = clock()
                 if step % log_every == 0:
                     self._log()
+                if step % 10 == 0:
+                    self._forget_far()
                 t5 = clock()
                 self._advance(dt)
                 t6 = clock()
@@ -915,9 +918,30 @@ class Engine:
             rec = self.records[vid]
             rec.min_gap = min(rec.min_gap, gap)
 
+    def _forget_far(self) -> None:
+        """Released vehicles more than ``LEADER_LOOKAHEAD_M`` along their last lane can be nobody's
+        leader any more: every controlled vehicle is still before its merging-zone exit, a few metres
+        into that lane, and a single lane keeps its order. They leave the batched read, which then
+        grows with the traffic near the junction, not with the length of the exit roads (SUMO's own
+        collision check still covers them)."""
+        tab = self.snap
+        keep = []
+        for vid in self.released:
+            k = tab.row.get(vid)
+            if k is None:  # it left the network
+                continue
+            last_lane = self.paths[self.records[vid].movement].lanes[-1]
+            if tab.lane[k] == last_lane and tab.lane_pos[k] > LEADER_LOOKAHEAD_M:
+                self.sumo.forget(vid)
+            else:
+                keep.append(vid)
+        self.released = keep
+
     def _collisions_geometric(self) -> None:
         """Own collision check: oriented rectangles (length x width) of every pair of vehicles
-        whose circumscribed circles meet, separating-axis test; counted once per pair."""
+        whose circumscribed circles meet, separating-axis test; counted once per pair. It covers
+        the vehicles of the batched read: all but released ones far down their exit road
+        (:meth:`_forget_far`), which only SUMO drives and checks."""
         tab = self.snap
         ids = tab.ids
         if len(ids) < 2:
@@ -940,19 +964,20 @@ class Engine:
         kb.advance(self.X, self.U, self.t, self.n_sub, self.cfg, self.plant_p, self.pred_p, self.u_lo, self.u_hi,
                    self.prof, self.t_enter, self.s_enter, self.path_id, self.path_off, self.path_xy, self.path_s,
                    self.path_frames, self.hint, self.lead_idx, self.lead_ext, self.acc, self.out)
-        if not np.all(np.isfinite(self.X)):
+        if not math.isfinite(float(self.X.sum())):  # a NaN or an infinity anywhere makes the sum one
             bad = [v for v, ok in zip(self.batch_ids, np.isfinite(self.X).all(axis=1)) if not ok]
             raise FloatingPointError(f"vehicle state became non-finite at t={self.t:.2f} s: {', '.join(bad)}")
         # merging-zone entry and exit crossed in this step: times interpolated within it
         s_prev, s_new = self.s_last, self.out[:, kb.OUT_S]
-        crossed = (s_new[:, None] >= self.s_zone) & (self.s_zone > s_prev[:, None])
-        for i, k in zip(*np.nonzero(crossed)):
-            rec = self.records[self.batch_ids[i]]
-            t_cross = self.t + dt * (self.s_zone[i, k] - s_prev[i]) / (s_new[i] - s_prev[i])
-            if k == 0 and math.isnan(rec.t_merge_actual):
-                rec.t_merge_actual = t_cross
-            elif k == 1 and math.isnan(rec.t_exit):
-                rec.t_exit = t_cross
+        for i in np.flatnonzero(s_new >= self.s_zone[:, 0]):
+            for k in (0, 1):
+                if s_new[i] >= self.s_zone[i, k] > s_prev[i]:
+                    rec = self.records[self.batch_ids[i]]
+                    t_cross = self.t + dt * (self.s_zone[i, k] - s_prev[i]) / (s_new[i] - s_prev[i])
+                    if k == 0 and math.isnan(rec.t_merge_actual):
+                        rec.t_merge_actual = t_cross
+                    elif k == 1 and math.isnan(rec.t_exit):
+                        rec.t_exit = t_cross
         self.s_last[:] = s_new
 
     def _log(self) -> None:
@@ -988,26 +1013,37 @@ class Engine:
             return
         cg = self.params.cg_to_front
         live = self.snap.row
-        keep = np.array([vid in live for vid in self.batch_ids])
+        ids = self.batch_ids
+        lost = [i for i, vid in enumerate(ids) if vid not in live]  # left SUMO's network (rare)
         X = self.X
         front_x = X[:, 0] + cg * np.cos(X[:, 4])
         front_y = X[:, 1] + cg * np.sin(X[:, 4])
-        self.sumo.push_poses([v for v, k in zip(self.batch_ids, keep) if k], front_x[keep], front_y[keep],
-                             X[keep, 4], np.hypot(X[keep, 2], X[keep, 3]))
-        done = keep & (self.out[:, kb.OUT_S] >= self.s_zone[:, 1])
-        for i in np.flatnonzero(~keep | done):
-            vid = self.batch_ids[i]
+        speed = np.hypot(X[:, 2], X[:, 3])
+        if lost:
+            keep = np.ones(len(ids), dtype=bool)
+            keep[lost] = False
+            self.sumo.push_poses([v for v, k in zip(ids, keep) if k], front_x[keep], front_y[keep], X[keep, 4],
+                                 speed[keep])
+        else:
+            self.sumo.push_poses(ids, front_x, front_y, X[:, 4], speed)
+        done = self.out[:, kb.OUT_S] >= self.s_zone[:, 1]
+        if not lost and not done.any():
+            return
+        done[lost] = False
+        for i in sorted(set(np.flatnonzero(done).tolist()) | set(lost)):
+            vid = ids[i]
             rec = self.records[vid]
             if done[i]:
                 self.sumo.release(vid)
                 rec.status = "released"
                 self.sumo.colour(vid, "released")
+                self.released.append(vid)
             else:
                 rec.status = "lost"
             rec.acc = self.acc[i].copy()
-        if not keep.all() or done.any():
-            self._remove(keep & ~done)
-
+        gone = done.copy()
+        gone[lost] = True
+        self._remove(~gone)
 
     def _script(self, scripted: list[str], t_next: float) -> None:
         """SUMO-driven vehicles with a speed profile: the desired speed for the next step."""
