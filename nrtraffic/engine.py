@@ -182,12 +182,12 @@ class Engine:
         cfg[kb.CFG_STEADY_AFTER] = STEADY_AFTER_S
         cfg[kb.CFG_CBF_LONG] = float(b.longitudinal)
         cfg[kb.CFG_CBF_LAT] = float(b.lateral)
-        # centre distance, same vehicle type; the robust margin leaves room for measurement error
-        cfg[kb.CFG_D0] = b.min_gap_m + self.params.length + b.robust_margin_m
+        # centre distance, same vehicle type; the margins leave room for measurement error
+        cfg[kb.CFG_D0] = b.min_gap_m + self.params.length + b.gap_margin_m
         cfg[kb.CFG_A_BAR] = b.max_braking_mps2
         cfg[kb.CFG_LONG_GAIN] = b.longitudinal_gain
         cfg[kb.CFG_ROOT_C] = b.root_smoothing_mps
-        cfg[kb.CFG_Y_MAX] = b.max_lateral_dev_m - b.robust_margin_m
+        cfg[kb.CFG_Y_MAX] = b.max_lateral_dev_m - b.lateral_margin_m
         cfg[kb.CFG_K_LAT] = 1.0 / (2.0 * b.max_lateral_accel_mps2)
         cfg[kb.CFG_GAMMA] = b.lateral_gamma
         cfg[kb.CFG_BISECT_TOL] = b.bisection_tol_rad

@@ -304,7 +304,8 @@ class Barriers:
     bisection_tol_rad: float = 1e-6  # tolerance of the lateral barrier's bisection [rad]
     anti_windup: bool = True  # the tracker integrates from the applied (filtered) input
     qp_solver: str = "closed_form"  # or a qpsolvers backend, e.g. "osqp" (same QP, slower)
-    robust_margin_m: float = 0.0  # added to d0 and taken from y_max: room for measurement error [m]
+    gap_margin_m: float = 0.0  # added to d0 by the barrier (not to the figures): room for measurement error [m]
+    lateral_margin_m: float = 0.0  # taken from y_max by the barrier, likewise [m]
 
     def validate(self) -> None:
         for k in ("max_braking_mps2", "longitudinal_gain", "max_lateral_dev_m", "max_lateral_accel_mps2",
@@ -313,8 +314,10 @@ class Barriers:
                 raise ScenarioError(f"barriers.{k} must be > 0")
         if self.min_gap_m < 0 or self.root_smoothing_mps < 0:
             raise ScenarioError("barriers.min_gap_m and barriers.root_smoothing_mps must be >= 0")
-        if not (0 <= self.robust_margin_m < self.max_lateral_dev_m):
-            raise ScenarioError("barriers.robust_margin_m must be >= 0 and below barriers.max_lateral_dev_m")
+        if not (0 <= self.gap_margin_m < math.inf):
+            raise ScenarioError(f"barriers.gap_margin_m must be >= 0, got {self.gap_margin_m!r}")
+        if not (0 <= self.lateral_margin_m < self.max_lateral_dev_m):
+            raise ScenarioError("barriers.lateral_margin_m must be >= 0 and below barriers.max_lateral_dev_m")
         if self.qp_solver != "closed_form":
             import qpsolvers
 
