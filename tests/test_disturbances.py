@@ -115,3 +115,17 @@ def test_noisy_runs_repeat_by_seed_and_the_margins_are_kept(tmp_path):
     assert clean["min_center_distance_m"] >= d0 + margin - 0.05
     assert clean["max_lateral_dev_m"] <= sc.barriers.max_lateral_dev_m - 0.05 + 1e-9
     assert math.isfinite(clean["min_center_distance_m"])
+
+
+def test_the_robustness_study_plans_every_level_of_both_scenarios(tmp_path):
+    """``nrtraffic robustness``: every level's settings load (a bad key would stop it before any
+    run), every (scenario, level, seed) is one run directory, and no two levels share a
+    configuration."""
+    from runners.robustness import LEVELS, STUDY, jobs
+
+    todo = jobs(tmp_path)
+    assert len(todo) == len(LEVELS) * (5 + 3)
+    assert len({j.run_dir for j in todo}) == len(todo)
+    for name, _, _, _ in STUDY:
+        mine = [j for j in todo if dict(j.point)["scenario.name"] == name and j.seed == 1]
+        assert len({j.fingerprint for j in mine}) == len(LEVELS)
