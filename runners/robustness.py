@@ -63,7 +63,8 @@ def jobs(out: Path) -> list:
 
 def figure(df: pd.DataFrame, path: Path) -> None:
     """Per scenario, against the level: the largest tracking error and lateral deviation and the
-    smallest centre distance over the runs."""
+    smallest centre distance over the runs, with the barriers' limits y_max and d0 dashed."""
+    from nrtraffic import scenario
     from nrtraffic.plots import plt
 
     ok = df[df["status"] == "ok"]
@@ -73,11 +74,18 @@ def figure(df: pd.DataFrame, path: Path) -> None:
               ("min_center_distance_m", "min", "smallest centre distance [m]"))
     fig, axes = plt.subplots(len(names), 3, figsize=(13.0, 3.4 * len(names)), squeeze=False)
     for r, name in enumerate(names):
+        sc = scenario.load(ROOT / "sumo_scenarios" / name / "scenario.toml")
+        limits = {"max_lateral_dev_m": sc.barriers.max_lateral_dev_m,
+                  "min_center_distance_m": sc.barriers.min_gap_m + sc.vehicle.params().length}
         g = ok[ok["scenario.name"] == name].groupby("disturbances.level", sort=True)
         for c, (k, how, label) in enumerate(panels):
             ax = axes[r, c]
             v = getattr(g[k], how)()
             ax.bar(range(len(v)), v.to_numpy(), color="tab:blue", alpha=0.8)
+            if k in limits:
+                ax.axhline(limits[k], color="tab:red", ls="--", lw=1,
+                           label="y_max" if k == "max_lateral_dev_m" else "d0")
+                ax.legend(fontsize=7, loc="best")
             ax.set_xticks(range(len(v)), [s.split(" ", 1)[1] for s in v.index], rotation=25, fontsize=7,
                           ha="right")
             ax.set_ylabel(label, fontsize=8)
