@@ -182,11 +182,12 @@ class Engine:
         cfg[kb.CFG_STEADY_AFTER] = STEADY_AFTER_S
         cfg[kb.CFG_CBF_LONG] = float(b.longitudinal)
         cfg[kb.CFG_CBF_LAT] = float(b.lateral)
-        cfg[kb.CFG_D0] = b.min_gap_m + self.params.length  # centre distance, same vehicle type
+        # centre distance, same vehicle type; the margins leave room for measurement error
+        cfg[kb.CFG_D0] = b.min_gap_m + self.params.length + b.gap_margin_m
         cfg[kb.CFG_A_BAR] = b.max_braking_mps2
         cfg[kb.CFG_LONG_GAIN] = b.longitudinal_gain
         cfg[kb.CFG_ROOT_C] = b.root_smoothing_mps
-        cfg[kb.CFG_Y_MAX] = b.max_lateral_dev_m
+        cfg[kb.CFG_Y_MAX] = b.max_lateral_dev_m - b.lateral_margin_m
         cfg[kb.CFG_K_LAT] = 1.0 / (2.0 * b.max_lateral_accel_mps2)
         cfg[kb.CFG_GAMMA] = b.lateral_gamma
         cfg[kb.CFG_BISECT_TOL] = b.bisection_tol_rad
@@ -194,7 +195,16 @@ class Engine:
         cfg[kb.CFG_QP_MODE] = 0.0 if b.qp_solver == "closed_form" else 1.0
         if b.qp_solver != "closed_form":
             kb.QP_SOLVER[0] = b.qp_solver
+        dist = scenario.disturbances
+        cfg[kb.CFG_LAG_TAU] = dist.actuator_lag_s
+        cfg[kb.CFG_FORCE_LONG] = dist.longitudinal_accel_mps2
+        cfg[kb.CFG_FORCE_LAT] = dist.lateral_accel_mps2
         self.cfg = cfg
+        # measurement noise: its own stream of the run's seed (arrivals are drawn from another), one
+        # draw per controlled vehicle and plant step in the order of the batch
+        self.noise_sd = np.array([dist.position_noise_m] * 2 + [dist.speed_noise_mps] * 2 + [dist.heading_noise_rad]
+                                 + [dist.position_noise_m] * 2 + [dist.speed_noise_mps] * 2)
+        self.noise_rng = np.random.default_rng([self.seed, 0x6E6F697365]) if dist.noisy else None
         self.records: dict[str, VehicleRecord] = {}
         self.collision_pairs: set[tuple[str, str]] = set()
         self.geometric_collisions: set[tuple[str, str]] = set()
@@ -633,7 +643,7 @@ class Engine:
 
     # ------------------------------------------------------------------ batch arrays
     _BATCH = ("X", "U", "prof", "t_enter", "s_enter", "path_id", "hint", "acc", "out", "lead_idx", "lead_ext", "gap",
-              "s_zone", "s_last")
+              "s_zone", "s_last", "act")
 
     def _pack_paths(self) -> None:
         self.path_names = list(self.paths)
@@ -659,6 +669,7 @@ class Engine:
         self.gap = np.full(n, np.nan)
         self.s_zone = np.zeros((n, 2))  # merging-zone entry and exit on the vehicle's path [m]
         self.s_last = np.zeros(n)  # arc length at the start of the step [m]
+        self.act = np.zeros((n, 2))  # the actuators' output (a_l, delta_f), with an actuator lag
 
     def _append(self, vid: str, x0, prof, t0: float, s0: float, lat0: float, ref0, pid: int, hint: int) -> None:
         self.batch_ids.append(vid)
@@ -668,6 +679,7 @@ class Engine:
             "path_id": [pid], "hint": [hint], "acc": kb.new_acc(1), "out": np.full((1, kb.N_OUT), np.nan),
             "lead_idx": [kb.NO_LEADER], "lead_ext": np.zeros((1, 6)), "gap": [np.nan],
             "s_zone": [[mv.s_merge, mv.s_exit]], "s_last": [s0],
+            "act": np.zeros((1, 2)),  # SUMO drove it at constant speed, straight ahead
         }
         for name in self._BATCH:
             cur = getattr(self, name)
@@ -961,9 +973,14 @@ class Engine:
     def _advance(self, dt: float) -> None:
         if not self.batch_ids:
             return
+        n = len(self.batch_ids)
+        if self.noise_rng is None:
+            noise = np.zeros((n, self.n_sub, 0))
+        else:
+            noise = self.noise_rng.standard_normal((n, self.n_sub, kb.N_NOISE)) * self.noise_sd
         kb.advance(self.X, self.U, self.t, self.n_sub, self.cfg, self.plant_p, self.pred_p, self.u_lo, self.u_hi,
                    self.prof, self.t_enter, self.s_enter, self.path_id, self.path_off, self.path_xy, self.path_s,
-                   self.path_frames, self.hint, self.lead_idx, self.lead_ext, self.acc, self.out)
+                   self.path_frames, self.hint, self.lead_idx, self.lead_ext, self.acc, self.out, noise, self.act)
         if not math.isfinite(float(self.X.sum())):  # a NaN or an infinity anywhere makes the sum one
             bad = [v for v, ok in zip(self.batch_ids, np.isfinite(self.X).all(axis=1)) if not ok]
             raise FloatingPointError(f"vehicle state became non-finite at t={self.t:.2f} s: {', '.join(bad)}")

@@ -304,6 +304,8 @@ class Barriers:
     bisection_tol_rad: float = 1e-6  # tolerance of the lateral barrier's bisection [rad]
     anti_windup: bool = True  # the tracker integrates from the applied (filtered) input
     qp_solver: str = "closed_form"  # or a qpsolvers backend, e.g. "osqp" (same QP, slower)
+    gap_margin_m: float = 0.0  # added to d0 by the barrier (not to the figures): room for measurement error [m]
+    lateral_margin_m: float = 0.0  # taken from y_max by the barrier, likewise [m]
 
     def validate(self) -> None:
         for k in ("max_braking_mps2", "longitudinal_gain", "max_lateral_dev_m", "max_lateral_accel_mps2",
@@ -312,6 +314,10 @@ class Barriers:
                 raise ScenarioError(f"barriers.{k} must be > 0")
         if self.min_gap_m < 0 or self.root_smoothing_mps < 0:
             raise ScenarioError("barriers.min_gap_m and barriers.root_smoothing_mps must be >= 0")
+        if not (0 <= self.gap_margin_m < math.inf):
+            raise ScenarioError(f"barriers.gap_margin_m must be >= 0, got {self.gap_margin_m!r}")
+        if not (0 <= self.lateral_margin_m < self.max_lateral_dev_m):
+            raise ScenarioError("barriers.lateral_margin_m must be >= 0 and below barriers.max_lateral_dev_m")
         if self.qp_solver != "closed_form":
             import qpsolvers
 
@@ -371,6 +377,34 @@ class Outputs:
                                 f"({self.warmup_s:g} s), or 0 for the end of the run")
 
 
+@dataclass(frozen=True)
+class Disturbances:
+    """``[disturbances]``: what the controller measures and commands is not what the vehicle is
+    and does (README, Robustness). The plant stays exact; the tracker and both barriers see the
+    measured state. Noise is Gaussian, drawn afresh at every plant step from the run's seed; all
+    zero (the default) is the undisturbed run."""
+
+    position_noise_m: float = 0.0  # standard deviation on each of x, y (own and leader's) [m]
+    speed_noise_mps: float = 0.0  # ... on each velocity component (own v_l, v_n; leader's) [m/s]
+    heading_noise_rad: float = 0.0  # ... on the own heading psi [rad]
+    actuator_lag_s: float = 0.0  # first-order lag on acceleration and steering (0: none) [s]
+    longitudinal_accel_mps2: float = 0.0  # constant force on the plant along the body: grade, head wind
+    lateral_accel_mps2: float = 0.0  # ... across it: cross wind, road camber [m/s^2]
+
+    def validate(self) -> None:
+        for k in ("position_noise_m", "speed_noise_mps", "heading_noise_rad", "actuator_lag_s"):
+            v = getattr(self, k)
+            if not (0 <= v < math.inf):
+                raise ScenarioError(f"disturbances.{k} must be >= 0, got {v!r}")
+        for k in ("longitudinal_accel_mps2", "lateral_accel_mps2"):
+            if not abs(getattr(self, k)) < 5.0:
+                raise ScenarioError(f"disturbances.{k} must be within +-5 m/s^2 (a 50 % grade), got {getattr(self, k)!r}")
+
+    @property
+    def noisy(self) -> bool:
+        return self.position_noise_m > 0 or self.speed_noise_mps > 0 or self.heading_noise_rad > 0
+
+
 _SECTIONS: dict[str, type] = {
     "scenario": General,
     "sumo": Sumo,
@@ -382,6 +416,7 @@ _SECTIONS: dict[str, type] = {
     "demand": Demand,
     "junction": Junction,
     "barriers": Barriers,
+    "disturbances": Disturbances,
     "outputs": Outputs,
 }
 
@@ -400,6 +435,7 @@ class Scenario:
     demand: Demand
     junction: Junction
     barriers: Barriers
+    disturbances: Disturbances
     outputs: Outputs
     approaches: tuple[Approach, ...]
     vehicles: tuple[ListedVehicle, ...]

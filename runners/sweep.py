@@ -367,7 +367,8 @@ def write_tables(df: pd.DataFrame, out: Path) -> None:
     summ = summarize(df)
     summ.to_csv(out / "sweep_summary.csv", index=False)
     note, tab = table(summ, df)
-    (out / "sweep.md").write_text(markdown(note, tab))
+    snote, stab = safety_table(df)
+    (out / "sweep.md").write_text(markdown(note, tab) + ("\n" + markdown(snote, stab) if len(stab) else ""))
     if len(summ) and (summ["runs"] > 0).any():
         figure(summ, out / "sweep.png")
         seed_figure(df, out / "sweep_seeds.png")
@@ -425,6 +426,30 @@ def table(summ: pd.DataFrame, df: pd.DataFrame) -> tuple[str, pd.DataFrame]:
             f(r, "mean_sumo_time_loss_s"), f(r, "mean_fuel_ml"),
             f"{total(r, 'collisions')} / {total(r, 'collisions_geometric')}"]
         rows.append(cells)
+    return note, pd.DataFrame(rows, columns=columns)
+
+
+def safety_table(df: pd.DataFrame) -> tuple[str, pd.DataFrame]:
+    """The controlled vehicles' safety and tracking figures per grid point (runs with barrier
+    figures only: SUMO's controls have none): worst case over the runs, and fallbacks and
+    collisions summed over them."""
+    ok = df.iloc[0:0]
+    if "min_center_distance_m" in df:
+        ok = df[(df["status"] == "ok") & df["min_center_distance_m"].notna()]
+    keys = [k for k in grid_keys(df) if k in ok]
+    note = ("Controlled vehicles, over all runs of a grid point: the largest tracking error and lateral "
+            "deviation, the smallest centre distance and bumper gap to the vehicle ahead on the same path "
+            "(true states, whatever was measured), and barrier fallbacks and collisions summed.")
+    columns = keys + ["control", "runs", "max tracking error [m]", "max lateral deviation [m]",
+                      "min centre distance [m]", "min bumper gap [m]", "fallbacks: long / lat",
+                      "collisions: SUMO / own check"]
+    rows = []
+    for point, g in (ok.groupby(keys + ["control"], sort=True) if len(ok) else ()):
+        rows.append([*map(str, point), str(len(g)), f"{g['max_tracking_error_m'].max():.3f}",
+                     f"{g['max_lateral_dev_m'].max():.3f}", f"{g['min_center_distance_m'].min():.2f}",
+                     f"{g['min_bumper_gap_m'].min():.2f}",
+                     f"{int(g['cbf_long_fallbacks'].sum())} / {int(g['cbf_lat_fallbacks'].sum())}",
+                     f"{int(g['collisions'].sum())} / {int(g['collisions_geometric'].sum())}"])
     return note, pd.DataFrame(rows, columns=columns)
 
 

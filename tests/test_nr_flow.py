@@ -151,3 +151,22 @@ def test_closed_loop_tracks_a_stop_and_go_reference(method, dt):
     assert np.all(np.isfinite(errs))
     assert errs.max() < 0.05
     assert x[2] == pytest.approx(1.0 * (15.0 - 9.7), abs=0.05)
+
+
+def test_prediction_stops_at_standstill_and_does_not_reverse():
+    """A held braking input over a horizon longer than the stop: the predicted position is the
+    stopping point v^2 / (2 |a|) within one predictor step's travel, not a point behind the car;
+    the acceleration column of the sensitivity stays positive (the flow can release the brake)."""
+    import numpy as np
+
+    from nrtraffic.control.nr_flow import RK4, new_workspace, predict
+    from nrtraffic.vehicle.params import preset
+
+    p = preset("paper").as_array()
+    ws, wsP = new_workspace()
+    g, J = np.zeros(2), np.zeros((2, 2))
+    for v0, a in ((1.0, -6.0), (2.0, -3.0), (0.0, -1.0)):
+        predict(np.array([0.0, 0.0, v0, 0.0, 0.0, 0.0]), np.array([a, 0.0]), p, 8.0, 0.1, RK4, g, J, ws, wsP)
+        stop = v0 * v0 / (2.0 * abs(a))
+        assert stop - 0.1 * v0 <= g[0] <= stop + 1e-9 and abs(g[1]) < 1e-9
+        assert J[0, 0] > 0.0

@@ -12,7 +12,16 @@ For each sub-step ``t_j = t_start + j h`` and each vehicle ``i``:
 
 Leaders (for the longitudinal barrier) are either controlled vehicles of the batch (their state at
 the start of the sub-step) or external vehicles whose state at ``t_start`` is extrapolated with
-constant acceleration. Figures accumulated per vehicle are the columns ``ACC_*`` of ``acc``; the
+constant acceleration.
+
+Disturbances (``[disturbances]``, README Robustness): with measurement noise the tracker and both
+barriers see the measured state (the plant's plus the sub-step's row of ``noise``: own x, y, v_l,
+v_n, psi, then the leader's x, y, v_x, v_y), the plant stays exact and the figures (gaps, centre
+distances, deviations) are the true ones. With an actuator lag the plant receives the output of a
+first-order lag of time constant ``tau`` driven by the filtered input, discretised exactly for an
+input held over the plant step: ``u_act <- u_act + (1 - exp(-h / tau)) (u_cmd - u_act)``, the plant
+step taking ``u_act`` at its start. A constant force per unit mass acts on the plant along and
+across the body. Figures accumulated per vehicle are the columns ``ACC_*`` of ``acc``; the
 state at the end of the step is written to the columns ``OUT_*`` of ``out``.
 """
 
@@ -39,11 +48,15 @@ N_ACC = 15
  OUT_CENTER, OUT_AX, OUT_AY) = range(14)
 N_OUT = 14
 
+# columns of a sub-step's measurement noise (``noise[i, j]``) [m, m/s, rad]
+(NZ_X, NZ_Y, NZ_VL, NZ_VN, NZ_PSI, NZ_LX, NZ_LY, NZ_LVX, NZ_LVY) = range(9)
+N_NOISE = 9
+
 # settings packed in ``cfg``
 (CFG_H, CFG_HORIZON, CFG_DT_PRED, CFG_ALPHA, CFG_DAMPING, CFG_STEADY_AFTER, CFG_CBF_LONG, CFG_CBF_LAT, CFG_D0,
  CFG_A_BAR, CFG_LONG_GAIN, CFG_Y_MAX, CFG_K_LAT, CFG_GAMMA, CFG_BISECT_TOL, CFG_ANTI_WINDUP, CFG_QP_MODE,
- CFG_ROOT_C, CFG_PREDICTOR) = range(19)
-N_CFG = 19
+ CFG_ROOT_C, CFG_PREDICTOR, CFG_LAG_TAU, CFG_FORCE_LONG, CFG_FORCE_LAT) = range(22)
+N_CFG = 22  # CFG_LAG_TAU: the actuator lag's time constant [s] (0: none); CFG_FORCE_*: [m/s^2]
 
 NO_LEADER = -1
 EXTERNAL_LEADER = -2
@@ -75,7 +88,7 @@ def _ref_xy(prof, tau, s_enter, xy, s, near):
 
 @njit(cache=True, error_model="numpy")
 def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_enter, s_enter, path_id, path_off,
-            path_xy_all, path_s_all, path_frames, hint, lead_idx, lead_ext, acc, out):
+            path_xy_all, path_s_all, path_frames, hint, lead_idx, lead_ext, acc, out, noise, act):
     """Advance all vehicles from ``t_start`` by ``n_sub`` plant steps (in place).
 
     X (N,6), U (N,2): plant states and tracker inputs (the update law's state). prof (N,K,5):
@@ -86,6 +99,8 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
     acc (N, N_ACC): accumulated figures. out (N, N_OUT): holds the vehicle's arc length, lateral
     deviation, tracking error and world acceleration (over its last plant step; what a follower's
     barrier reads of it as a leader) at ``t_start`` on entry and at the end of the step on return.
+    noise (N, n_sub, N_NOISE) or (N, n_sub, 0) without noise: the measurement noise of every
+    sub-step. act (N, 2): the actuators' output (with a lag; updated).
     """
     N = X.shape[0]
     h = cfg[CFG_H]
@@ -95,6 +110,12 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
     anti_windup = cfg[CFG_ANTI_WINDUP] > 0.5
     qp_mode = int(cfg[CFG_QP_MODE])
     method = int(cfg[CFG_PREDICTOR])
+    noisy = noise.shape[2] > 0
+    lagged = cfg[CFG_LAG_TAU] > 0.0
+    lag_c = 1.0 - math.exp(-h / cfg[CFG_LAG_TAU]) if lagged else 1.0
+    force_l = cfg[CFG_FORCE_LONG]
+    force_n = cfg[CFG_FORCE_LAT]
+    xm = np.empty(6)
     ws, wsP = new_workspace()
     u_new = np.empty(2)
     u_app = np.empty(2)
@@ -122,10 +143,26 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
             a1 = path_off[path_id[i] + 1]
             xy = path_xy_all[a0:a1]
             s = path_s_all[a0:a1]
-            x = X[i]
+            x = X[i]  # the plant's state
             u = U[i]
             cp = cs[i, 0]
             sp = cs[i, 1]
+            # what the tracker and barriers see: the state as measured
+            if noisy:
+                for k in range(6):
+                    xm[k] = x[k]
+                xm[0] += noise[i, j, NZ_X]
+                xm[1] += noise[i, j, NZ_Y]
+                xm[2] += noise[i, j, NZ_VL]
+                xm[3] += noise[i, j, NZ_VN]
+                xm[4] += noise[i, j, NZ_PSI]
+                xv = xm
+                cpv = math.cos(xm[4])
+                spv = math.sin(xm[4])
+            else:
+                xv = x
+                cpv = cp
+                spv = sp
             u_app[0] = u[0]
             u_app[1] = u[1]
             pinned_a = False
@@ -135,17 +172,21 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
             ty = path_frames[fr, 1]
             curv = path_frames[fr, 2]
             # body rates of eq. (1) at a_l = 0 and their slope in a_l, at the tracker's steering:
-            # shared by both barriers and the plant (re-evaluated if the lateral barrier steers)
-            f2, f3, f5, g3, g5 = body_rates_affine(x, u_app[1], plant_p)
+            # shared by both barriers and the plant (re-evaluated if the lateral barrier steers;
+            # for the plant again, at the true state, when what the barriers see differs)
+            f2, f3, f5, g3, g5 = body_rates_affine(xv, u_app[1], plant_p)
             # ---- lateral barrier: bisection on the steering
             if cbf_lat:
                 a = u_app[0]
-                d, st, hl = cbf.lat_filter_given(x, cp, sp, a, u_app[1], f2 + a, f3 + a * g3, plant_p,
-                                                 out[i, OUT_LAT], tx, ty, curv, cfg[CFG_Y_MAX], cfg[CFG_K_LAT],
+                lat_v = out[i, OUT_LAT]
+                if noisy:  # the deviation of the measured position
+                    lat_v += tx * noise[i, j, NZ_Y] - ty * noise[i, j, NZ_X]
+                d, st, hl = cbf.lat_filter_given(xv, cpv, spv, a, u_app[1], f2 + a, f3 + a * g3, plant_p,
+                                                 lat_v, tx, ty, curv, cfg[CFG_Y_MAX], cfg[CFG_K_LAT],
                                                  cfg[CFG_GAMMA], u_hi[1], cfg[CFG_BISECT_TOL])
                 if d != u_app[1]:
                     u_app[1] = d
-                    f2, f3, f5, g3, g5 = body_rates_affine(x, d, plant_p)
+                    f2, f3, f5, g3, g5 = body_rates_affine(xv, d, plant_p)
                 out[i, OUT_H_LAT] = hl
                 if hl < acc[i, ACC_MIN_H_LAT]:
                     acc[i, ACC_MIN_H_LAT] = hl
@@ -167,13 +208,18 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
                         lead[k] = lead_ext[i, k] + lead_ext[i, 2 + k] * tau + 0.5 * lead_ext[i, 4 + k] * tau * tau
                         lead[2 + k] = lead_ext[i, 2 + k] + lead_ext[i, 4 + k] * tau
                         lead[4 + k] = lead_ext[i, 4 + k]
-                dc = math.sqrt((lead[0] - x[0]) ** 2 + (lead[1] - x[1]) ** 2)
+                dc = math.sqrt((lead[0] - x[0]) ** 2 + (lead[1] - x[1]) ** 2)  # true
                 out[i, OUT_CENTER] = dc
                 if dc < acc[i, ACC_MIN_CENTER]:
                     acc[i, ACC_MIN_CENTER] = dc
+                if noisy:  # the leader as measured
+                    lead[0] += noise[i, j, NZ_LX]
+                    lead[1] += noise[i, j, NZ_LY]
+                    lead[2] += noise[i, j, NZ_LVX]
+                    lead[3] += noise[i, j, NZ_LVY]
             # ---- longitudinal barrier: one-dimensional QP on the acceleration
             if cbf_long and has_lead:
-                hb, G, b = cbf.long_constraint_given(x, cp, sp, f2, f3, g3, lead, cfg[CFG_D0], cfg[CFG_A_BAR],
+                hb, G, b = cbf.long_constraint_given(xv, cpv, spv, f2, f3, g3, lead, cfg[CFG_D0], cfg[CFG_A_BAR],
                                                      cfg[CFG_LONG_GAIN], cfg[CFG_ROOT_C])
                 if qp_mode == 0:
                     a, st = cbf.long_filter_closed(u_app[0], G, b, u_lo[0], u_hi[0])
@@ -200,14 +246,22 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
             if anti_windup:
                 u[0] = u_app[0]
                 u[1] = u_app[1]
-                nr_update(x, u, pred_p, ref, horizon, cfg[CFG_DT_PRED], method, cfg[CFG_ALPHA], cfg[CFG_DAMPING], h,
-                          u_lo, u_hi, u_new, ws, wsP, not pinned_a, not pinned_d, tx, ty)
+                nr_update(xv, u, pred_p, ref, horizon, cfg[CFG_DT_PRED], method, cfg[CFG_ALPHA], cfg[CFG_DAMPING],
+                          h, u_lo, u_hi, u_new, ws, wsP, not pinned_a, not pinned_d, tx, ty)
             else:
-                nr_update(x, u, pred_p, ref, horizon, cfg[CFG_DT_PRED], method, cfg[CFG_ALPHA], cfg[CFG_DAMPING], h,
+                nr_update(xv, u, pred_p, ref, horizon, cfg[CFG_DT_PRED], method, cfg[CFG_ALPHA], cfg[CFG_DAMPING], h,
                           u_lo, u_hi, u_new, ws, wsP, True, True)
             # ---- plant, eq. (1): one forward-Euler step with the applied input held over it
             # (bicycle.euler_step, from the rates above; v_l is clamped at 0: no reversing)
             a = u_app[0]
+            if lagged:  # the actuators' output at the start of the step, then toward the command
+                a = act[i, 0]
+                d_act = act[i, 1]
+                act[i, 0] += lag_c * (u_app[0] - act[i, 0])
+                act[i, 1] += lag_c * (u_app[1] - act[i, 1])
+                f2, f3, f5, g3, g5 = body_rates_affine(x, d_act, plant_p)
+            elif noisy:
+                f2, f3, f5, g3, g5 = body_rates_affine(x, u_app[1], plant_p)
             v = x[2]
             vx0 = snap[i, 2]
             vy0 = snap[i, 3]
@@ -216,8 +270,8 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
             dz2 = x[2] * sp + x[3] * cp
             x[0] += h * dz1
             x[1] += h * dz2
-            x[2] += h * (f2 + a)
-            x[3] += h * (f3 + a * g3)
+            x[2] += h * (f2 + a + force_l)
+            x[3] += h * (f3 + a * g3 + force_n)
             x[4] += h * r
             x[5] += h * (f5 + a * g5)
             if x[2] < 0.0:

@@ -22,6 +22,13 @@ count is ``max(round(T / Dt), ceil(T rho / c))`` with ``rho`` the spectral radiu
 speed and ``c`` = 1.8 (Euler) or 2.5 (RK4), under the limits. The step is then ``T / n``: with
 ``T`` = 0.2 s and ``Dt`` = 0.1 s, RK4 takes 2 steps at 13.9 m/s, 3 at 6.5 m/s and 14 at 1.5 m/s.
 
+No reversing: like the plant (``bicycle.euler_step``), the prediction stops at ``v_l = 0`` (clamped
+after every integrator step; a car standing under a braking input then holds its state) instead of
+driving backwards under a held braking input: over a long horizon (8 s in the paper's barrier
+experiment) a prediction through zero speed spins the car round, and the flow chases it. The
+sensitivity recursion runs on while the car stands, so that the flow can still pull a braking
+input back up from a standstill.
+
 Update law (eq. 12): ``u' = alpha (dg/du)^-1 (r(t+T) - g(x, u))``, integrated by forward Euler at
 the plant step. Near standstill the steering column of ``dg/du`` vanishes; the inverse is then
 regularised as damped least squares ``(J^T J + lambda I)^-1 J^T`` with
@@ -84,6 +91,17 @@ def predictor_steps(vl, p, horizon, dt_pred, method):
 
 
 @njit(cache=True, error_model="numpy")
+def _stand(xi, a, d, cd, sd, td, p, P, f, dP, h):
+    """One predictor step of a car standing under a braking input: the state holds (the plant does
+    not reverse); the sensitivity takes an Euler step of its recursion there, so that ``dg/du``
+    says how far releasing the brake would take it."""
+    rhs_tangent(xi, math.cos(xi[4]), math.sin(xi[4]), a, d, cd, sd, td, p, P, f, dP)
+    for i in range(6):
+        P[i, 0] += h * dP[i, 0]
+        P[i, 1] += h * dP[i, 1]
+
+
+@njit(cache=True, error_model="numpy")
 def predict(x, u, p, horizon, dt_pred, method, g, J, ws, wsP):
     """Predictor of eqs. (13)-(14) with its exact sensitivity.
 
@@ -114,15 +132,23 @@ def predict(x, u, p, horizon, dt_pred, method, g, J, ws, wsP):
     td = math.tan(d)
     if method == EULER:
         for _ in range(n):
+            if xi[2] <= 0.0 and a + xi[5] * xi[3] <= 0.0:
+                _stand(xi, a, d, cd, sd, td, p, P, f, dP, h)
+                continue
             rhs_tangent(xi, math.cos(xi[4]), math.sin(xi[4]), a, d, cd, sd, td, p, P, f, dP)
             for i in range(6):
                 xi[i] += h * f[i]
                 P[i, 0] += h * dP[i, 0]
                 P[i, 1] += h * dP[i, 1]
+            if xi[2] < 0.0:  # as the plant: it brakes to a stop, it does not reverse
+                xi[2] = 0.0
     else:
         hh = 0.5 * h
         h6 = h / 6.0
         for _ in range(n):
+            if xi[2] <= 0.0 and a + xi[5] * xi[3] <= 0.0:
+                _stand(xi, a, d, cd, sd, td, p, P, f, dP, h)
+                continue
             rhs_tangent(xi, math.cos(xi[4]), math.sin(xi[4]), a, d, cd, sd, td, p, P, f, dP)
             for i in range(6):
                 ksum[i] = f[i]
@@ -149,6 +175,8 @@ def predict(x, u, p, horizon, dt_pred, method, g, J, ws, wsP):
                 xi[i] += h6 * (ksum[i] + f[i])
                 for j in range(2):
                     P[i, j] += h6 * (dPsum[i, j] + dP[i, j])
+            if xi[2] < 0.0:  # as the plant: it brakes to a stop, it does not reverse
+                xi[2] = 0.0
     g[0] = xi[0]
     g[1] = xi[1]
     J[0, 0] = P[0, 0]
