@@ -33,6 +33,7 @@ from nrtraffic.results import VEHICLE_COLUMNS, RunResult, TrajectoryWriter, pars
 from nrtraffic.scenario import TURNS, Scenario
 from nrtraffic.sumo.adapter import SumoSession, VehicleType, sumo_version, write_routes, write_sumocfg
 from nrtraffic.sumo.network import junction_movements
+from nrtraffic.vehicle.fuel import fuel_rate
 
 N_PROFILE_SEG = 81  # packed profile segments (closed forms: at most 3 arcs + cruise; rear-end QP: 80 + cruise)
 STEADY_AFTER_S = 3.0  # DESIGN.md: steady-state tracking error counts after 3 s under control
@@ -804,7 +805,7 @@ class Engine:
             v, a = float(tab.speed[k]), float(tab.accel[k])
             acc = self.records[vid].acc
             acc[kb.ACC_ENERGY] += 0.5 * a * a * dt
-            acc[kb.ACC_FUEL] += metrics.fuel_rate(v, a) * dt
+            acc[kb.ACC_FUEL] += fuel_rate(v, a) * dt
 
     def _hold(self, vid: str) -> None:
         rec = self.records[vid]
@@ -865,7 +866,7 @@ class Engine:
             if not math.isnan(rec.t_enter) and math.isnan(rec.t_exit):
                 acc = rec.acc
                 acc[kb.ACC_ENERGY] += 0.5 * a * a * dt
-                acc[kb.ACC_FUEL] += metrics.fuel_rate(v, a) * dt
+                acc[kb.ACC_FUEL] += fuel_rate(v, a) * dt
                 acc[kb.ACC_MAX_ABS_A] = max(acc[kb.ACC_MAX_ABS_A], abs(a))
                 acc[kb.ACC_STEPS] += 1
             rec.s_last = s_new

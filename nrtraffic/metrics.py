@@ -1,7 +1,7 @@
 """Per-vehicle and per-run figures.
 
-Fuel: Kamal et al.'s polynomial as used by this line of work (REFERENCE.md section 3), in mL/s with
-``v`` [m/s] and ``u`` [m/s^2]; the acceleration term counts only for ``u > 0``.
+Fuel: the vehicle's fuel model (:mod:`nrtraffic.vehicle.fuel`), integrated over the vehicle's time
+in the zones [mL].
 Energy: ``1/2 int u^2 dt`` of the applied longitudinal acceleration [m^2/s^3].
 Delay: time lost against free flow at the speed the vehicle was sent in with (its departure speed,
 the entry speed of the demand), ``(t_exit - t_arrive) - (s_exit - s_arrive) / v_free`` [s] from
@@ -12,16 +12,6 @@ time SUMO could not insert it because its lane was backed up (SUMO's departDelay
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
-
-
-@njit(cache=True)
-def fuel_rate(v, u):
-    """Fuel consumption rate [mL/s] at speed ``v`` [m/s] and acceleration ``u`` [m/s^2]."""
-    f = 0.1569 + 2.450e-2 * v - 7.415e-4 * v * v + 5.975e-5 * v * v * v
-    if u > 0.0:
-        f += u * (0.07224 + 9.681e-2 * v + 1.075e-3 * v * v)
-    return f
 
 
 def free_flow_delay(t_enter, t_exit, distance_m, v_enter):

@@ -35,9 +35,9 @@ from numba import njit, objmode
 from nrtraffic.control import cbf
 from nrtraffic.control.nr_flow import new_workspace, nr_update
 from nrtraffic.geometry import path_point_near, project_local
-from nrtraffic.metrics import fuel_rate
 from nrtraffic.planning.profiles import packed_position
 from nrtraffic.vehicle.bicycle import body_rates_affine
+from nrtraffic.vehicle.fuel import fuel_rate
 
 (ACC_MAX_ERR, ACC_MAX_ERR_STEADY, ACC_MAX_LAT, ACC_ENERGY, ACC_FUEL, ACC_MAX_ABS_A, ACC_MAX_ERR_TRANSIENT,
  ACC_STEPS, ACC_LONG_ACTIVE, ACC_LAT_ACTIVE, ACC_LONG_FALLBACK, ACC_LAT_FALLBACK, ACC_MIN_CENTER, ACC_MIN_H_LONG,
