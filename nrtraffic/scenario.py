@@ -397,8 +397,9 @@ class Disturbances:
             if not (0 <= v < math.inf):
                 raise ScenarioError(f"disturbances.{k} must be >= 0, got {v!r}")
         for k in ("longitudinal_accel_mps2", "lateral_accel_mps2"):
-            if not abs(getattr(self, k)) < 5.0:
-                raise ScenarioError(f"disturbances.{k} must be within +-5 m/s^2 (a 50 % grade), got {getattr(self, k)!r}")
+            v = getattr(self, k)
+            if not abs(v) < 5.0:
+                raise ScenarioError(f"disturbances.{k} must be within +-5 m/s^2 (a 50 % grade), got {v!r}")
 
     @property
     def noisy(self) -> bool:

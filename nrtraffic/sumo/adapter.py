@@ -8,7 +8,7 @@ route's internal lanes, too), bit 1 places the front bumper at the exact positio
 included, with or without the sublane model (``keepRoute=1`` needs the sublane model for that and
 snaps to the lane centre without it: REFERENCE.md section 5). Without sublanes SUMO's step costs
 about a third less (README, Performance). The true speed is set beside it (``setSpeedMode 0`` +
-``setSpeed``), so that SUMO's timeLoss, emissions and followers see the real speed.
+``setSpeed``), so that SUMO's timeLoss and the cars behind see the real speed.
 """
 
 from __future__ import annotations
@@ -266,7 +266,8 @@ class SumoSession:
 
     def snapshot(self) -> VehicleTable:
         """Lane, lane position, front-bumper pose, speed and acceleration of every vehicle in the
-        network, from one batched read of SUMO's subscriptions (updated by every step)."""
+        network (but those :meth:`forget` left out), from one batched read of SUMO's subscriptions
+        (updated by every step)."""
         res = self.traci.vehicle.getAllSubscriptionResults()
         ids = list(res)
         kl, kp, kxy, ka, kv, kacc = self._vars
