@@ -200,6 +200,7 @@ class Engine:
         cfg[kb.CFG_LAG_TAU] = dist.actuator_lag_s
         cfg[kb.CFG_FORCE_LONG] = dist.longitudinal_accel_mps2
         cfg[kb.CFG_FORCE_LAT] = dist.lateral_accel_mps2
+        cfg[kb.CFG_OBSERVER_TAU] = dist.observer_time_s
         self.cfg = cfg
         # measurement noise: its own stream of the run's seed (arrivals are drawn from another), one
         # draw per controlled vehicle and plant step in the order of the batch
@@ -644,7 +645,7 @@ class Engine:
 
     # ------------------------------------------------------------------ batch arrays
     _BATCH = ("X", "U", "prof", "t_enter", "s_enter", "path_id", "hint", "acc", "out", "lead_idx", "lead_ext", "gap",
-              "s_zone", "s_last", "act")
+              "s_zone", "s_last", "act", "xe")
 
     def _pack_paths(self) -> None:
         self.path_names = list(self.paths)
@@ -671,6 +672,7 @@ class Engine:
         self.s_zone = np.zeros((n, 2))  # merging-zone entry and exit on the vehicle's path [m]
         self.s_last = np.zeros(n)  # arc length at the start of the step [m]
         self.act = np.zeros((n, 2))  # the actuators' output (a_l, delta_f), with an actuator lag
+        self.xe = np.zeros((n, 6))  # the state observer's estimate, with an observer
 
     def _append(self, vid: str, x0, prof, t0: float, s0: float, lat0: float, ref0, pid: int, hint: int) -> None:
         self.batch_ids.append(vid)
@@ -681,6 +683,7 @@ class Engine:
             "lead_idx": [kb.NO_LEADER], "lead_ext": np.zeros((1, 6)), "gap": [np.nan],
             "s_zone": [[mv.s_merge, mv.s_exit]], "s_last": [s0],
             "act": np.zeros((1, 2)),  # SUMO drove it at constant speed, straight ahead
+            "xe": x0[None],  # the observer starts from the state at admission
         }
         for name in self._BATCH:
             cur = getattr(self, name)
@@ -981,7 +984,8 @@ class Engine:
             noise = self.noise_rng.standard_normal((n, self.n_sub, kb.N_NOISE)) * self.noise_sd
         kb.advance(self.X, self.U, self.t, self.n_sub, self.cfg, self.plant_p, self.pred_p, self.u_lo, self.u_hi,
                    self.prof, self.t_enter, self.s_enter, self.path_id, self.path_off, self.path_xy, self.path_s,
-                   self.path_frames, self.hint, self.lead_idx, self.lead_ext, self.acc, self.out, noise, self.act)
+                   self.path_frames, self.hint, self.lead_idx, self.lead_ext, self.acc, self.out, noise, self.act,
+                   self.xe)
         if not math.isfinite(float(self.X.sum())):  # a NaN or an infinity anywhere makes the sum one
             bad = [v for v, ok in zip(self.batch_ids, np.isfinite(self.X).all(axis=1)) if not ok]
             raise FloatingPointError(f"vehicle state became non-finite at t={self.t:.2f} s: {', '.join(bad)}")

@@ -388,11 +388,13 @@ class Disturbances:
     speed_noise_mps: float = 0.0  # ... on each velocity component (own v_l, v_n; leader's) [m/s]
     heading_noise_rad: float = 0.0  # ... on the own heading psi [rad]
     actuator_lag_s: float = 0.0  # first-order lag on acceleration and steering (0: none) [s]
+    observer_time_s: float = 0.0  # time constant of a state observer the controller sees (0: none) [s]
     longitudinal_accel_mps2: float = 0.0  # constant force on the plant along the body: grade, head wind
     lateral_accel_mps2: float = 0.0  # ... across it: cross wind, road camber [m/s^2]
 
     def validate(self) -> None:
-        for k in ("position_noise_m", "speed_noise_mps", "heading_noise_rad", "actuator_lag_s"):
+        for k in ("position_noise_m", "speed_noise_mps", "heading_noise_rad", "actuator_lag_s",
+                  "observer_time_s"):
             v = getattr(self, k)
             if not (0 <= v < math.inf):
                 raise ScenarioError(f"disturbances.{k} must be >= 0, got {v!r}")
@@ -613,6 +615,10 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
     ratio = sc.sumo.step_length_s / sc.controller.plant_step_s
     if abs(ratio - round(ratio)) > 1e-9:
         raise ScenarioError("sumo.step_length_s must be a whole multiple of controller.plant_step_s")
+    obs = sc.disturbances.observer_time_s
+    if 0 < obs < sc.controller.plant_step_s:
+        raise ScenarioError(f"disturbances.observer_time_s ({obs:g} s) must be 0 (no observer) or at least "
+                            f"controller.plant_step_s ({sc.controller.plant_step_s:g} s)")
     ratio = sc.outputs.trajectory_interval_s / sc.sumo.step_length_s
     if ratio < 1.0 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
         raise ScenarioError(f"outputs.trajectory_interval_s ({sc.outputs.trajectory_interval_s:g} s) must be a whole "

@@ -115,7 +115,8 @@ def bench_batch(n_vehicles: int, horizon=0.2, n_sub=20, barriers: bool = True, p
 
     def step(t):
         kb.advance(X, U, t, n_sub, cfg, p, pp, lo, hi, prof, np.zeros(N), s_enter, pid, off, path.xy, path.s, frames,
-                   hint, lead_idx, np.zeros((N, 6)), acc, out, np.zeros((N, n_sub, 0)), np.zeros((N, 2)))
+                   hint, lead_idx, np.zeros((N, 6)), acc, out, np.zeros((N, n_sub, 0)), np.zeros((N, 2)),
+                   X.copy())
 
     step(0.0)
     n_steps = 20

@@ -124,8 +124,8 @@ def _add_robustness(sub) -> None:
         "robustness", help="the controller under measurement noise and actuator lag",
         description="Run the paper's barrier experiment (paper_cbf, seeds 1-5) and cross4 (400 veh/h per approach, "
                     "seeds 1-3, 600 s) without disturbances, at three levels of measurement noise, at the middle "
-                    "level with the barriers' robust margin, and with an actuator lag (runners/robustness.py "
-                    "lists them), as one resumable sweep. Writes DIR/sweep.md (traffic, and safety and tracking "
+                    "level with a damped Newton step, a gap margin or a state observer, and with an actuator lag "
+                    "(runners/robustness.py lists them), as one resumable sweep. Writes DIR/sweep.md (traffic, and safety and tracking "
                     "per scenario and level), DIR/sweep.csv, DIR/sweep_summary.csv and DIR/robustness.png.")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int, default=2, help="worker processes of the local cluster (default 2)")

@@ -27,8 +27,8 @@ def _noise(position_m: float, speed_mps: float, heading_rad: float) -> tuple[str
 
 
 # (name, overrides): three noise levels (standard deviations of position, each velocity component
-# and heading), the middle one with a damped Newton step and with the barrier's gap margin too, and
-# an actuator lag alone
+# and heading), the middle one with a damped Newton step and with the barrier's gap margin too, an
+# actuator lag alone, and the middle level seen through a state observer
 LEVELS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("0 none", ()),
     ("1 low", _noise(0.02, 0.02, 0.002)),
@@ -38,6 +38,7 @@ LEVELS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("5 middle, damping 0.01, gap margin 0.2 m", _noise(0.05, 0.05, 0.005)
      + ("controller.damping=0.01", "barriers.gap_margin_m=0.2")),
     ("6 actuator lag 0.1 s", ("disturbances.actuator_lag_s=0.1",)),
+    ("7 middle, observer 0.5 s", _noise(0.05, 0.05, 0.005) + ("disturbances.observer_time_s=0.5",)),
 )
 
 # (scenario folder, seeds, duration [s] or None for the scenario's, further overrides)

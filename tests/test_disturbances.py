@@ -41,7 +41,7 @@ def _kernel(x0, u0, n_steps, alpha=0.0, lag_s=0.0, force=(0.0, 0.0), noise_sd=No
         kb.advance(X, U, k * H, 1, cfg, p, p, np.array([-6.0, -0.78]), np.array([3.0, 0.78]), prof, np.zeros(1),
                    np.zeros(1), np.zeros(1, dtype=np.int64), np.array([0, len(path.s)], dtype=np.int64), path.xy,
                    path.s, segment_frames(path.xy, path.s), np.zeros(1, dtype=np.int64),
-                   np.full(1, kb.NO_LEADER, dtype=np.int64), np.zeros((1, 6)), acc, out, noise, act)
+                   np.full(1, kb.NO_LEADER, dtype=np.int64), np.zeros((1, 6)), acc, out, noise, act, X.copy())
         states.append(X[0].copy())
     return np.array(states), np.array(acts)
 
@@ -129,3 +129,56 @@ def test_the_robustness_study_plans_every_level_of_both_scenarios(tmp_path):
     for name, _, _, _ in STUDY:
         mine = [j for j in todo if dict(j.point)["scenario.name"] == name and j.seed == 1]
         assert len({j.fingerprint for j in mine}) == len(LEVELS)
+
+
+def _observe(noise_sd, tau_o, n_steps, seed=0):
+    """One vehicle cruising straight (tracker frozen, barriers off) under measurement noise, with a
+    state observer of time constant ``tau_o``: the (n_steps, 6) estimation errors x_e - x."""
+    p = preset("paper").as_array()
+    path = LanePath.from_points([(-10.0, 0.0), (5000.0, 0.0)])
+    X, U = np.array([[0.0, 0.0, 10.0, 0.0, 0.0, 0.0]]), np.zeros((1, 2))
+    prof = np.zeros((1, 5, 5))
+    prof[0, :, 0] = np.arange(5) * 1e9
+    prof[0, :, 2] = 10.0
+    cfg = np.zeros(kb.N_CFG)
+    cfg[[kb.CFG_H, kb.CFG_HORIZON, kb.CFG_DT_PRED, kb.CFG_DAMPING, kb.CFG_PREDICTOR, kb.CFG_OBSERVER_TAU]] = (
+        H, 0.2, 0.1, 1e-6, 1.0, tau_o)
+    out = np.zeros((1, kb.N_OUT))
+    out[0, kb.OUT_S] = 10.0
+    xe = X.copy()
+    rng = np.random.default_rng(seed)
+    err = []
+    for k in range(n_steps):
+        noise = rng.standard_normal((1, 1, kb.N_NOISE)) * noise_sd
+        kb.advance(X, U, k * H, 1, cfg, p, p, np.array([-6.0, -0.78]), np.array([3.0, 0.78]), prof, np.zeros(1),
+                   np.zeros(1), np.zeros(1, dtype=np.int64), np.array([0, len(path.s)], dtype=np.int64), path.xy,
+                   path.s, segment_frames(path.xy, path.s), np.zeros(1, dtype=np.int64),
+                   np.full(1, kb.NO_LEADER, dtype=np.int64), np.zeros((1, 6)), kb.new_acc(1), out, noise,
+                   np.zeros((1, 2)), xe)
+        err.append(xe[0] - X[0])
+    return np.array(err)
+
+
+def test_observer_filters_noise_as_its_closed_form():
+    """Noise on x alone: the estimate's error obeys e <- (1 - K) e + K n with K = h / tau (the model
+    steps of estimate and plant cancel on a straight cruise), whose stationary standard deviation
+    is sigma sqrt(K / (2 - K)). Without noise the estimate stays on the state exactly."""
+    sigma, tau = 0.1, 0.05
+    sd = np.zeros(kb.N_NOISE)
+    sd[kb.NZ_X] = sigma
+    e = _observe(sd, tau, 20000)[1000:, 0]
+    k = H / tau
+    assert e.std() == pytest.approx(sigma * math.sqrt(k / (2.0 - k)), rel=0.05)
+    assert abs(e.mean()) < 3.0 * sigma * math.sqrt(k / (2.0 - k)) / math.sqrt(len(e) * k)
+    assert np.all(_observe(np.zeros(kb.N_NOISE), tau, 500) == 0.0)
+
+
+def test_an_observer_without_noise_changes_nothing(tmp_path):
+    from conftest import SCENARIOS
+
+    path = SCENARIOS / "cross4" / "scenario.toml"
+    a = run_scenario(scenario.load(path), tmp_path / "a", duration_s=60.0).summary
+    b = run_scenario(scenario.load(path, ["disturbances.observer_time_s=0.05"]), tmp_path / "b",
+                     duration_s=60.0).summary
+    for k in ("max_tracking_error_m", "max_lateral_dev_m", "min_center_distance_m", "mean_fuel_ml", "mean_delay_s"):
+        assert a[k] == b[k]

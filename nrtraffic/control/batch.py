@@ -21,8 +21,13 @@ distances, deviations) are the true ones. With an actuator lag the plant receive
 first-order lag of time constant ``tau`` driven by the filtered input, discretised exactly for an
 input held over the plant step: ``u_act <- u_act + (1 - exp(-h / tau)) (u_cmd - u_act)``, the plant
 step taking ``u_act`` at its start. A constant force per unit mass acts on the plant along and
-across the body. Figures accumulated per vehicle are the columns ``ACC_*`` of ``acc``; the
-state at the end of the step is written to the columns ``OUT_*`` of ``out``.
+across the body. With a state observer the tracker and barriers see its estimate ``x_e`` instead of
+the measurement ``y``: every plant step ``x_e <- x_e + (h / tau_o) (y - x_e)``, then
+``x_e <- x_e + h f(x_e, u)`` with the model of eq. (1) and the filtered input (a constant-gain
+observer; it knows neither the actuator lag nor the forces).
+
+Figures accumulated per vehicle are the columns ``ACC_*`` of ``acc``; the state at the end of the
+step is written to the columns ``OUT_*`` of ``out``.
 """
 
 from __future__ import annotations
@@ -55,8 +60,9 @@ N_NOISE = 9
 # settings packed in ``cfg``
 (CFG_H, CFG_HORIZON, CFG_DT_PRED, CFG_ALPHA, CFG_DAMPING, CFG_STEADY_AFTER, CFG_CBF_LONG, CFG_CBF_LAT, CFG_D0,
  CFG_A_BAR, CFG_LONG_GAIN, CFG_Y_MAX, CFG_K_LAT, CFG_GAMMA, CFG_BISECT_TOL, CFG_ANTI_WINDUP, CFG_QP_MODE,
- CFG_ROOT_C, CFG_PREDICTOR, CFG_LAG_TAU, CFG_FORCE_LONG, CFG_FORCE_LAT) = range(22)
-N_CFG = 22  # CFG_LAG_TAU: the actuator lag's time constant [s] (0: none); CFG_FORCE_*: [m/s^2]
+ CFG_ROOT_C, CFG_PREDICTOR, CFG_LAG_TAU, CFG_FORCE_LONG, CFG_FORCE_LAT, CFG_OBSERVER_TAU) = range(23)
+N_CFG = 23  # CFG_LAG_TAU: the actuator lag's time constant [s] (0: none); CFG_FORCE_*: [m/s^2];
+# CFG_OBSERVER_TAU: the state observer's time constant [s] (0: the controller sees the measurement)
 
 NO_LEADER = -1
 EXTERNAL_LEADER = -2
@@ -88,7 +94,7 @@ def _ref_xy(prof, tau, s_enter, xy, s, near):
 
 @njit(cache=True, error_model="numpy")
 def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_enter, s_enter, path_id, path_off,
-            path_xy_all, path_s_all, path_frames, hint, lead_idx, lead_ext, acc, out, noise, act):
+            path_xy_all, path_s_all, path_frames, hint, lead_idx, lead_ext, acc, out, noise, act, xe):
     """Advance all vehicles from ``t_start`` by ``n_sub`` plant steps (in place).
 
     X (N,6), U (N,2): plant states and tracker inputs (the update law's state). prof (N,K,5):
@@ -100,7 +106,8 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
     deviation, tracking error and world acceleration (over its last plant step; what a follower's
     barrier reads of it as a leader) at ``t_start`` on entry and at the end of the step on return.
     noise (N, n_sub, N_NOISE) or (N, n_sub, 0) without noise: the measurement noise of every
-    sub-step. act (N, 2): the actuators' output (with a lag; updated).
+    sub-step. act (N, 2): the actuators' output (with a lag; updated). xe (N, 6): the state
+    observer's estimate (with an observer; updated).
     """
     N = X.shape[0]
     h = cfg[CFG_H]
@@ -115,6 +122,9 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
     lag_c = 1.0 - math.exp(-h / cfg[CFG_LAG_TAU]) if lagged else 1.0
     force_l = cfg[CFG_FORCE_LONG]
     force_n = cfg[CFG_FORCE_LAT]
+    observing = cfg[CFG_OBSERVER_TAU] > 0.0
+    k_obs = h / cfg[CFG_OBSERVER_TAU] if observing else 0.0
+    seen = noisy or observing  # the controller's view differs from the plant's state
     xm = np.empty(6)
     ws, wsP = new_workspace()
     u_new = np.empty(2)
@@ -157,10 +167,16 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
                 xm[3] += noise[i, j, NZ_VN]
                 xm[4] += noise[i, j, NZ_PSI]
                 xv = xm
-                cpv = math.cos(xm[4])
-                spv = math.sin(xm[4])
             else:
                 xv = x
+            if observing:  # the estimate, corrected toward the measurement
+                for k in range(6):
+                    xe[i, k] += k_obs * (xv[k] - xe[i, k])
+                xv = xe[i]
+            if seen:
+                cpv = math.cos(xv[4])
+                spv = math.sin(xv[4])
+            else:
                 cpv = cp
                 spv = sp
             u_app[0] = u[0]
@@ -179,8 +195,8 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
             if cbf_lat:
                 a = u_app[0]
                 lat_v = out[i, OUT_LAT]
-                if noisy:  # the deviation of the measured position
-                    lat_v += tx * noise[i, j, NZ_Y] - ty * noise[i, j, NZ_X]
+                if seen:  # the deviation of the position seen
+                    lat_v += tx * (xv[1] - x[1]) - ty * (xv[0] - x[0])
                 d, st, hl = cbf.lat_filter_given(xv, cpv, spv, a, u_app[1], f2 + a, f3 + a * g3, plant_p,
                                                  lat_v, tx, ty, curv, cfg[CFG_Y_MAX], cfg[CFG_K_LAT],
                                                  cfg[CFG_GAMMA], u_hi[1], cfg[CFG_BISECT_TOL])
@@ -254,13 +270,19 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
             # ---- plant, eq. (1): one forward-Euler step with the applied input held over it
             # (bicycle.euler_step, from the rates above; v_l is clamped at 0: no reversing)
             a = u_app[0]
+            # the estimate's model step, from the rates the barriers used (at x_e, with the input)
+            e_dz1 = xv[2] * cpv - xv[3] * spv
+            e_dz2 = xv[2] * spv + xv[3] * cpv
+            e_vl = f2 + a
+            e_vn = f3 + a * g3
+            e_r = f5 + a * g5
             if lagged:  # the actuators' output at the start of the step, then toward the command
                 a = act[i, 0]
                 d_act = act[i, 1]
                 act[i, 0] += lag_c * (u_app[0] - act[i, 0])
                 act[i, 1] += lag_c * (u_app[1] - act[i, 1])
                 f2, f3, f5, g3, g5 = body_rates_affine(x, d_act, plant_p)
-            elif noisy:
+            elif seen:
                 f2, f3, f5, g3, g5 = body_rates_affine(x, u_app[1], plant_p)
             v = x[2]
             vx0 = snap[i, 2]
@@ -276,6 +298,15 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
             x[5] += h * (f5 + a * g5)
             if x[2] < 0.0:
                 x[2] = 0.0
+            if observing:
+                xe[i, 0] += h * e_dz1
+                xe[i, 1] += h * e_dz2
+                xe[i, 2] += h * e_vl
+                xe[i, 3] += h * e_vn
+                xe[i, 4] += h * xe[i, 5]
+                xe[i, 5] += h * e_r
+                if xe[i, 2] < 0.0:
+                    xe[i, 2] = 0.0
             cp = math.cos(x[4])
             sp = math.sin(x[4])
             cs[i, 0] = cp
