@@ -126,6 +126,7 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
     k_obs = h / cfg[CFG_OBSERVER_TAU] if observing else 0.0
     seen = noisy or observing  # the controller's view differs from the plant's state
     xm = np.empty(6)
+    e_dz1 = e_dz2 = e_vl = e_vn = e_r = 0.0  # the observer's model step
     ws, wsP = new_workspace()
     u_new = np.empty(2)
     u_app = np.empty(2)
@@ -270,12 +271,12 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
             # ---- plant, eq. (1): one forward-Euler step with the applied input held over it
             # (bicycle.euler_step, from the rates above; v_l is clamped at 0: no reversing)
             a = u_app[0]
-            # the estimate's model step, from the rates the barriers used (at x_e, with the input)
-            e_dz1 = xv[2] * cpv - xv[3] * spv
-            e_dz2 = xv[2] * spv + xv[3] * cpv
-            e_vl = f2 + a
-            e_vn = f3 + a * g3
-            e_r = f5 + a * g5
+            if observing:  # the estimate's model step, from the rates the barriers used (at x_e)
+                e_dz1 = xv[2] * cpv - xv[3] * spv
+                e_dz2 = xv[2] * spv + xv[3] * cpv
+                e_vl = f2 + a
+                e_vn = f3 + a * g3
+                e_r = f5 + a * g5
             if lagged:  # the actuators' output at the start of the step, then toward the command
                 a = act[i, 0]
                 d_act = act[i, 1]
