@@ -108,6 +108,11 @@ def _add_sweep(sub) -> None:
                    help="let the scenario name files outside its own folder (refused by default)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="override a scenario setting in every run (repeatable)")
+    _add_cluster_args(p)
+
+
+def _add_cluster_args(p) -> None:
+    """Where a sweep runs and where it writes: shared by sweep and robustness."""
     where = p.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int, default=2, help="worker processes of the local cluster (default 2)")
     where.add_argument("--scheduler", default=None, metavar="ADDRESS",
@@ -125,14 +130,10 @@ def _add_robustness(sub) -> None:
         description="Run the paper's barrier experiment (paper_cbf, seeds 1-5) and cross4 (400 veh/h per approach, "
                     "seeds 1-3, 600 s) without disturbances, at three levels of measurement noise, at the middle "
                     "level with a damped Newton step, a gap margin or a state observer, and with an actuator lag "
-                    "(runners/robustness.py lists them), as one resumable sweep. Writes DIR/sweep.md (traffic, and safety and tracking "
-                    "per scenario and level), DIR/sweep.csv, DIR/sweep_summary.csv and DIR/robustness.png.")
-    where = p.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=int, default=2, help="worker processes of the local cluster (default 2)")
-    where.add_argument("--scheduler", default=None, metavar="ADDRESS", help="use an existing Dask scheduler")
-    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
-    p.add_argument("--force", action="store_true", help="run again run directories made with another configuration")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+                    "(runners/robustness.py lists them), as one resumable sweep. Writes DIR/sweep.md (traffic, "
+                    "and safety and tracking per scenario and level), DIR/sweep.csv, DIR/sweep_summary.csv and "
+                    "DIR/robustness.png.")
+    _add_cluster_args(p)
 
 
 def _add_replay(sub) -> None:
