@@ -171,6 +171,7 @@ def _scenario_copy(tmp_path, old=None, new=None, extra=""):
 
 @pytest.mark.parametrize("old, new, extra, message", [
     ('id = "C"', 'id = "Q"', "", "junction 'Q' is not in it"),
+    ('id = "C"', 'id = "N"', "", "junction 'N' (dead_end) has no movements"),
     ('network = "net.net.xml"', 'network = "net.nod.xml"', "", "not a SUMO network"),
     ("", "", '\n[[approaches]]\nname = "x"\nroute = ["N_in", "nowhere"]\nmerge_entry_edge = "N_in"\n',
      "'nowhere' is not in it"),

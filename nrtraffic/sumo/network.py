@@ -44,14 +44,16 @@ def junction_movements(net_path: Path, junction_id: str) -> tuple[list[JunctionM
                 continue
             out.append(JunctionMovement(edge.getID(), con.getTo().getID(), turn))
     if not out:
-        raise NetworkError(f"junction {junction_id!r} has no movements")
+        raise NetworkError(f"junction {junction_id!r} ({node.getType()}) has no movements: no incoming lane "
+                           f"connects through it to another road, so there is nothing to coordinate")
     x, y = node.getCoord()
     return out, (float(x), float(y))
 
 
 def check_scenario(net_path: Path, junction_id: str = "", edges: tuple[str, ...] = ()) -> None:
     """Check, before SUMO starts, that ``net_path`` is a SUMO network holding the junction and the
-    edges a scenario names; raises :class:`NetworkError` naming the file and every missing id."""
+    edges a scenario names, and that the junction has movements (not a dead end); raises
+    :class:`NetworkError` naming the file and every missing id, or the unsuitable junction."""
     import xml.etree.ElementTree as ET
 
     try:
@@ -78,6 +80,8 @@ def check_scenario(net_path: Path, junction_id: str = "", edges: tuple[str, ...]
                         f"{'are' if len(missing) > 1 else 'is'} not in it")
     if problems:
         raise NetworkError(f"{net_path}: " + "; ".join(problems))
+    if junction_id:  # there, but is it a junction with movements to coordinate?
+        junction_movements(net_path, junction_id)
 
 
 _SUMO_OPTIONS: set[str] = set()
