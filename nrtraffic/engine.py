@@ -36,6 +36,7 @@ from nrtraffic.sumo.network import junction_movements
 from nrtraffic.vehicle.fuel import fuel_rate
 
 N_PROFILE_SEG = 81  # packed profile segments (closed forms: at most 3 arcs + cruise; rear-end QP: 80 + cruise)
+MIN_CONTROL_ZONE_M = 20.0  # shortest control zone a route may leave after a cut [m]
 STEADY_AFTER_S = 3.0  # DESIGN.md: steady-state tracking error counts after 3 s under control
 PATH_SPACING_M = 0.25  # sampling of the smoothed lane paths [m]
 LEADER_LOOKAHEAD_M = 200.0  # how far along its path a vehicle looks for its leader [m]
@@ -208,6 +209,7 @@ class Engine:
                                  + [dist.position_noise_m] * 2 + [dist.speed_noise_mps] * 2)
         self.noise_rng = np.random.default_rng([self.seed, 0x6E6F697365]) if dist.noisy else None
         self.records: dict[str, VehicleRecord] = {}
+        self.zone_cuts: dict[str, float] = {}  # movement -> its control zone's length where it was cut [m]
         self.collision_pairs: set[tuple[str, str]] = set()
         self.geometric_collisions: set[tuple[str, str]] = set()
         self.collision_log: list[dict] = []  # first contact of each pair: time, ids, who saw it
@@ -410,14 +412,25 @@ class Engine:
                 s_m = offsets[lane_m][0] + a.merge_entry_pos_m * offsets[lane_m][1]
                 s_x = s_m + z.merging_zone_m
             s_c = s_m - z.control_zone_m
-            if s_c < -1e-6:
-                raise ValueError(f"movement {name}: the control zone would start before the route does")
+            # a car inserted at the route's start has its centre of gravity behind one car length: a
+            # zone reaching further back is cut there, and the cut reported
+            first = self.params.length
+            if s_c < first:
+                if s_m - first < MIN_CONTROL_ZONE_M:
+                    raise ValueError(f"movement {name}: only {s_m - first:.1f} m of its route lie before the merging "
+                                     f"zone, less than the {MIN_CONTROL_ZONE_M:g} m a control zone needs")
+                s_c = first
+                self.zone_cuts[name] = s_m - s_c
             if s_x > path.length:
                 raise ValueError(f"movement {name}: the merging zone runs past the end of the route")
             v_lim = min(sumo.lane_speed(ln) for ln, _, _ in lanes) if self.junction_xy is not None else math.inf
             v_lim = min(v_lim, _curve_speed(path, s_m, s_x, self.sc.planning.max_lateral_accel_mps2))
             out[name] = Movement(name, appr, turn, route, path, [ln for ln, _, _ in lanes], offsets, s_c, s_m, s_x,
                                  v_lim)
+        if self.zone_cuts:
+            print(f"{self.sc.general.name}: zones.control_zone_m = {z.control_zone_m:g} m reaches back past where "
+                  f"routes start; cut there: " + ", ".join(f"{k} {v:.0f} m" for k, v in self.zone_cuts.items()),
+                  file=sys.stderr)
         return out
 
     def _write_movements(self) -> None:
@@ -1186,6 +1199,7 @@ class Engine:
             "throughput_veh_h": throughput,
             "demand_veh_h": demand or None,
             "served_share": throughput / demand if demand and throughput is not None else None,
+            "control_zones_cut_m": {k: round(v, 3) for k, v in self.zone_cuts.items()},
             "vehicles_waiting_to_enter": len(due),
             "mean_wait_to_enter_s": float(np.mean([sim_t - t for t in due])) if due else None,
             "mean_depart_delay_s": metrics.mean_or_none(done["depart_delay_s"]),

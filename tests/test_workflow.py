@@ -1,6 +1,7 @@
 """The engineer's workflow: demand as turning movement counts and peak intervals, the measurement
 window, the movement table, SUMO's wait to insert, and a run directory that opens in sumo-gui."""
 
+import json
 import math
 import subprocess
 import xml.etree.ElementTree as ET
@@ -351,3 +352,26 @@ def test_scenario_folder_opens_with_its_demand(name, tmp_path):
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert int(proc.stdout.split("Inserted: ")[1].split()[0]) > 10
+
+
+def test_a_control_zone_longer_than_the_road_is_cut_and_reported(tmp_path, capsys):
+    """cross4's approach roads are about 500 m long before the merging zone: a 1000 m control zone
+    is cut where the routes start (one car length in), every movement's cut is in summary.json,
+    and the run admits its vehicles as usual."""
+    from conftest import SCENARIOS
+
+    from runners.single import run_scenario
+
+    sc = scenario.load(SCENARIOS / "cross4" / "scenario.toml", ["zones.control_zone_m=1000"])
+    s = run_scenario(sc, tmp_path / "r", duration_s=120.0).summary  # admissions count after the 60 s warm-up
+    cuts = s["control_zones_cut_m"]
+    assert len(cuts) == 12 and all(450.0 < v < 1000.0 for v in cuts.values())
+    assert "cut there" in capsys.readouterr().err
+    assert s["vehicles_admitted"] > 0 and s["collisions"] == 0
+    movements = json.loads((tmp_path / "r" / "movements.json").read_text())["movements"]
+    for name, length in cuts.items():
+        m = movements[name]
+        assert m["merge_entry_m"] - m["control_zone_start_m"] == pytest.approx(length, abs=1e-3)
+        assert m["control_zone_start_m"] == pytest.approx(sc.vehicle.params().length)
+    plain = run_scenario(scenario.load(SCENARIOS / "cross4" / "scenario.toml"), tmp_path / "p", duration_s=5.0)
+    assert plain.summary["control_zones_cut_m"] == {}
