@@ -23,6 +23,7 @@ import pandas as pd
 
 from nrtraffic import __version__, metrics
 from nrtraffic.control import batch as kb
+from nrtraffic.control.leaders import find_leaders, pack_path_lanes
 from nrtraffic.control.nr_flow import PREDICTORS
 from nrtraffic.demand import shifted_exponential_arrivals
 from nrtraffic.geometry import LanePath, segment_frames, touching_pairs
@@ -668,6 +669,9 @@ class Engine:
         self.path_s = np.ascontiguousarray(np.concatenate([self.paths[k].path.s for k in self.path_names]))
         self.path_frames = np.ascontiguousarray(np.concatenate(
             [segment_frames(self.paths[k].path.xy, self.paths[k].path.s) for k in self.path_names]))
+        # the lanes of the paths, for the leader search
+        self.lane_index, self.pl_off, self.pl_lane, self.pl_start, self.pl_scale = pack_path_lanes(
+            [self.paths[k] for k in self.path_names])
 
     def _alloc(self, n: int) -> None:
         self.X = np.zeros((n, 6))
@@ -890,62 +894,23 @@ class Engine:
     def _leaders(self) -> None:
         """For each controlled vehicle, the nearest vehicle ahead on the lanes of its own path
         (controlled or SUMO-driven, of any movement: the same lane before a diverge, the same
-        outgoing lane after a merge): its batch index or its state, and the bumper gap [m] to it,
-        all at time ``t``. Vehicles on other lanes (crossing movements) are kept apart by the
-        coordinator, not by the barrier."""
+        outgoing lane after a merge; :func:`nrtraffic.control.leaders.find_leaders`): its batch
+        index or its state, and the bumper gap [m] to it, all at time ``t``. Vehicles on other
+        lanes (crossing movements) are kept apart by the coordinator, not by the barrier."""
         n = len(self.batch_ids)
         if n == 0:
             return
         p = self.params
-        self.lead_idx[:] = kb.NO_LEADER
-        self.gap[:] = np.nan
-        index = {v: i for i, v in enumerate(self.batch_ids)}
         tab = self.snap
-        by_lane: dict[str, list] = {}
-        for lane, pos, vid in zip(tab.lane, tab.lane_pos.tolist(), tab.ids):
-            by_lane.setdefault(lane, []).append((pos, vid))
-        for lst in by_lane.values():
-            lst.sort()
-        ext_cache: dict[str, tuple] = {}
-        for vid, i in index.items():
-            k = tab.row.get(vid)
-            if k is None:
-                continue
-            mv = self.paths[self.records[vid].movement]
-            lane, pos = tab.lane[k], float(tab.lane_pos[k])
-            if lane not in mv.lane_offset:
-                continue
-            k0 = mv.lanes.index(lane)
-            lead, lead_front = None, 0.0
-            ahead = 0.0  # path length searched beyond this vehicle's lane [m]
-            for k in range(k0, len(mv.lanes)):
-                ln = mv.lanes[k]
-                for lpos, other in by_lane.get(ln, ()):
-                    if other != vid and (k > k0 or lpos > pos):
-                        lead, lead_front = other, mv.s_of(ln, lpos)
-                        break
-                if lead is not None:
-                    break
-                ahead += mv.lane_offset[mv.lanes[k + 1]][0] - mv.lane_offset[ln][0] if k + 1 < len(mv.lanes) else 0.0
-                if ahead > LEADER_LOOKAHEAD_M:
-                    break
-            if lead is None:
-                continue
-            if lead in index:
-                self.lead_idx[i] = index[lead]
-            else:
-                if lead not in ext_cache:
-                    j = tab.row[lead]
-                    xf, yf, psi = float(tab.x[j]), float(tab.y[j]), float(tab.psi[j])
-                    v, a = float(tab.speed[j]), float(tab.accel[j])
-                    c, sn = math.cos(psi), math.sin(psi)
-                    ext_cache[lead] = (xf - p.cg_to_front * c, yf - p.cg_to_front * sn, v * c, v * sn, a * c, a * sn)
-                self.lead_idx[i] = kb.EXTERNAL_LEADER
-                self.lead_ext[i] = ext_cache[lead]
-            gap = lead_front - p.length - mv.s_of(lane, pos)  # leader's rear minus own front (same type)
-            self.gap[i] = gap
-            rec = self.records[vid]
-            rec.min_gap = min(rec.min_gap, gap)
+        lane_id = np.array([self.lane_index.get(ln, -1) for ln in tab.lane], dtype=np.int64)
+        rows = np.array([tab.row.get(v, -1) for v in self.batch_ids], dtype=np.int64)
+        find_leaders(lane_id, tab.lane_pos, tab.x, tab.y, tab.psi, tab.speed, tab.accel, rows, self.path_id,
+                     self.pl_off, self.pl_lane, self.pl_start, self.pl_scale, LEADER_LOOKAHEAD_M, p.cg_to_front,
+                     p.length, self.lead_idx, self.lead_ext, self.gap)
+        for vid, g in zip(self.batch_ids, self.gap.tolist()):
+            if g == g:  # a leader
+                rec = self.records[vid]
+                rec.min_gap = min(rec.min_gap, g)
 
     def _forget_far(self) -> None:
         """Released vehicles more than ``LEADER_LOOKAHEAD_M`` along their last lane can be nobody's

@@ -305,3 +305,39 @@ def test_conflict_point_search_ends_when_rounding_puts_a_pushed_time_on_the_boun
             t += rng.uniform(0.0, 2.0)
             a = c.schedule(f"v{k}", f"lane{k}", t, 13.89, 400.0, mv, 30.0, v_limit=rng.choice([6.5, 8.0, 13.89]))
             assert np.isfinite(a.t_merge)
+
+
+def test_leader_search_by_hand():
+    """Two paths that merge onto one exit lane (lanes 0 -> 2 and 1 -> 2, 100 m and 20 m long, the
+    exit lane scaled 1:1): each controlled car's leader is the nearest car ahead on its own lanes,
+    whichever path that car is on; a car on the other entry lane is no leader; nothing ahead within
+    the look-ahead leaves none."""
+    import numpy as np
+
+    from nrtraffic.control import batch as kb
+    from nrtraffic.control.leaders import find_leaders
+
+    pl_off = np.array([0, 2, 4], dtype=np.int64)
+    pl_lane = np.array([0, 2, 1, 2], dtype=np.int64)
+    pl_start = np.array([0.0, 100.0, 0.0, 20.0])
+    pl_scale = np.ones(4)
+    # table: a on lane 0 at 50 m, b on lane 0 at 80 m, c on lane 1 at 10 m, d (SUMO-driven) on lane 2
+    # at 30 m, e on lane 1 at 15 m (controlled)
+    lane_id = np.array([0, 0, 1, 2, 1], dtype=np.int64)
+    lane_pos = np.array([50.0, 80.0, 10.0, 30.0, 15.0])
+    x, y = np.array([50.0, 80.0, 5.0, 130.0, 8.0]), np.zeros(5)
+    psi, speed, accel = np.zeros(5), np.full(5, 10.0), np.array([0.0, 0.0, 0.0, -1.0, 0.0])
+    rows = np.array([0, 1, 2, 4], dtype=np.int64)  # batch: a, b, c, e
+    path_id = np.array([0, 0, 1, 1], dtype=np.int64)
+    lead_idx, lead_ext, gap = np.zeros(4, dtype=np.int64), np.zeros((4, 6)), np.zeros(4)
+    length = 4.8
+    find_leaders(lane_id, lane_pos, x, y, psi, speed, accel, rows, path_id, pl_off, pl_lane, pl_start, pl_scale,
+                 200.0, 2.4, length, lead_idx, lead_ext, gap)
+    # a -> b (batch 1), 30 m ahead; b -> d (external) on the exit lane at s = 130; c -> e; e -> d
+    assert lead_idx.tolist() == [1, kb.EXTERNAL_LEADER, 3, kb.EXTERNAL_LEADER]
+    assert gap == pytest.approx([30.0 - length, 130.0 - 80.0 - length, 5.0 - length, 50.0 - 15.0 - length])
+    assert lead_ext[1] == pytest.approx([130.0 - 2.4, 0.0, 10.0, 0.0, -1.0, 0.0])
+    # the look-ahead: with 10 m of it, b's search stops after its own 100 m lane, short of d
+    find_leaders(lane_id, lane_pos, x, y, psi, speed, accel, rows, path_id, pl_off, pl_lane, pl_start, pl_scale,
+                 10.0, 2.4, length, lead_idx, lead_ext, gap)
+    assert lead_idx[1] == kb.NO_LEADER and np.isnan(gap[1]) and lead_idx[0] == 1
