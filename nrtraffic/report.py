@@ -96,11 +96,14 @@ def run_report(run_dir: Path) -> Path:
     return out
 
 
-def sweep_report(out_dir: Path, note: str, table: pd.DataFrame) -> Path:
-    """``report.html`` of a sweep: its table (``note`` and ``table``, as in sweep.md) and figures."""
+def sweep_report(out_dir: Path, tables: list[tuple[str, pd.DataFrame]], figures: list[str]) -> Path:
+    """``report.html`` of a sweep: its tables (each a note and a table, as in sweep.md) and the
+    figures of ``out_dir`` named in ``figures``."""
     out_dir = Path(out_dir)
-    body = [f"<p class='note'>{html.escape(note)}</p>", _table(table)]
-    for f in ("sweep.png", "sweep_seeds.png"):
+    body = []
+    for note, table in tables:
+        body += [f"<p class='note'>{html.escape(note)}</p>", _table(table)]
+    for f in figures:
         if (out_dir / f).is_file():
             body.append(_img(out_dir / f))
     out = out_dir / "report.html"

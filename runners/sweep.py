@@ -259,10 +259,19 @@ def remove_stale(out: Path) -> list[Path]:
 
 
 # ------------------------------------------------------------------ the sweep
+def sweep_figures(df: pd.DataFrame, summ: pd.DataFrame, out: Path) -> list[str]:
+    """A sweep's figures (:func:`figure`, :func:`seed_figure`) in ``out``; returns their names."""
+    if not (len(summ) and (summ["runs"] > 0).any()):
+        return []
+    figure(summ, out / "sweep.png")
+    seed_figure(df, out / "sweep_seeds.png")
+    return ["sweep.png", "sweep_seeds.png"]
+
+
 def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | None = None,
-              progress: bool = True) -> pd.DataFrame:
-    """Run the jobs not yet finished on Dask, then write the tables and figures from every run
-    directory. Returns ``sweep.csv`` as a DataFrame."""
+              progress: bool = True, figures=sweep_figures) -> pd.DataFrame:
+    """Run the jobs not yet finished on Dask, then write the tables and figures (``figures``, see
+    :func:`write_tables`) from every run directory. Returns ``sweep.csv`` as a DataFrame."""
     import dask
     from dask.distributed import Client, LocalCluster, as_completed
     from tqdm import tqdm
@@ -303,7 +312,7 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
                 if cluster is not None:
                     cluster.close()
     df = collect(jobs, errors)
-    write_tables(df, out)
+    write_tables(df, out, figures)
     return df
 
 
@@ -362,19 +371,21 @@ def summarize(df: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(out)
 
 
-def write_tables(df: pd.DataFrame, out: Path) -> None:
+def write_tables(df: pd.DataFrame, out: Path, figures=sweep_figures) -> None:
+    """sweep.csv, sweep_summary.csv, sweep.md (the study table and the safety table), the figures
+    that ``figures(df, summary, out)`` draws and report.html with all of them."""
     df.to_csv(out / "sweep.csv", index=False)
     summ = summarize(df)
     summ.to_csv(out / "sweep_summary.csv", index=False)
-    note, tab = table(summ, df)
+    tables = [table(summ, df)]
     snote, stab = safety_table(df)
-    (out / "sweep.md").write_text(markdown(note, tab) + ("\n" + markdown(snote, stab) if len(stab) else ""))
-    if len(summ) and (summ["runs"] > 0).any():
-        figure(summ, out / "sweep.png")
-        seed_figure(df, out / "sweep_seeds.png")
+    if len(stab):
+        tables.append((snote, stab))
+    (out / "sweep.md").write_text("\n".join(markdown(n, t) for n, t in tables))
+    names = figures(df, summ, out)
     from nrtraffic.report import sweep_report
 
-    sweep_report(out, note, tab)
+    sweep_report(out, tables, names)
 
 
 def table(summ: pd.DataFrame, df: pd.DataFrame) -> tuple[str, pd.DataFrame]:
