@@ -206,8 +206,10 @@ class Engine:
         self.cfg = cfg
         # measurement noise: its own stream of the run's seed (arrivals are drawn from another), one
         # draw per controlled vehicle and plant step in the order of the batch
-        self.noise_sd = np.array([dist.position_noise_m] * 2 + [dist.speed_noise_mps] * 2 + [dist.heading_noise_rad]
-                                 + [dist.position_noise_m] * 2 + [dist.speed_noise_mps] * 2)
+        self.noise_sd = np.zeros(kb.N_NOISE)  # standard deviation of each column of the noise
+        self.noise_sd[[kb.NZ_X, kb.NZ_Y, kb.NZ_LX, kb.NZ_LY]] = dist.position_noise_m
+        self.noise_sd[[kb.NZ_VL, kb.NZ_VN, kb.NZ_LVX, kb.NZ_LVY]] = dist.speed_noise_mps
+        self.noise_sd[kb.NZ_PSI] = dist.heading_noise_rad
         self.noise_rng = np.random.default_rng([self.seed, 0x6E6F697365]) if dist.noisy else None
         self.records: dict[str, VehicleRecord] = {}
         self.zone_cuts: dict[str, float] = {}  # movement -> its control zone's length where it was cut [m]
@@ -903,7 +905,9 @@ class Engine:
         p = self.params
         tab = self.snap
         lane_id = np.array([self.lane_index.get(ln, -1) for ln in tab.lane], dtype=np.int64)
-        rows = np.array([tab.row.get(v, -1) for v in self.batch_ids], dtype=np.int64)
+        # each controlled vehicle's row in the table (-1: SUMO no longer lists it), also read by
+        # _push_and_release later in the step
+        rows = self.batch_rows = np.array([tab.row.get(v, -1) for v in self.batch_ids], dtype=np.int64)
         find_leaders(lane_id, tab.lane_pos, tab.x, tab.y, tab.psi, tab.speed, tab.accel, rows, self.path_id,
                      self.pl_off, self.pl_lane, self.pl_start, self.pl_scale, LEADER_LOOKAHEAD_M, p.cg_to_front,
                      p.length, self.lead_idx, self.lead_ext, self.gap)
@@ -1012,25 +1016,23 @@ class Engine:
         if not self.batch_ids:
             return
         cg = self.params.cg_to_front
-        live = self.snap.row
         ids = self.batch_ids
-        lost = [i for i, vid in enumerate(ids) if vid not in live]  # left SUMO's network (rare)
+        lost = self.batch_rows < 0  # left SUMO's network (rare); rows found by _leaders this step
         X = self.X
         front_x = X[:, 0] + cg * np.cos(X[:, 4])
         front_y = X[:, 1] + cg * np.sin(X[:, 4])
         speed = np.hypot(X[:, 2], X[:, 3])
-        if lost:
-            keep = np.ones(len(ids), dtype=bool)
-            keep[lost] = False
+        keep = ~lost
+        if keep.all():
+            self.sumo.push_poses(ids, front_x, front_y, X[:, 4], speed)
+        else:
             self.sumo.push_poses([v for v, k in zip(ids, keep) if k], front_x[keep], front_y[keep], X[keep, 4],
                                  speed[keep])
-        else:
-            self.sumo.push_poses(ids, front_x, front_y, X[:, 4], speed)
-        done = self.out[:, kb.OUT_S] >= self.s_zone[:, 1]
-        if not lost and not done.any():
+        done = keep & (self.out[:, kb.OUT_S] >= self.s_zone[:, 1])
+        gone = lost | done
+        if not gone.any():
             return
-        done[lost] = False
-        for i in sorted(set(np.flatnonzero(done).tolist()) | set(lost)):
+        for i in np.flatnonzero(gone).tolist():
             vid = ids[i]
             rec = self.records[vid]
             if done[i]:
@@ -1041,8 +1043,6 @@ class Engine:
             else:
                 rec.status = "lost"
             rec.acc = self.acc[i].copy()
-        gone = done.copy()
-        gone[lost] = True
         self._remove(~gone)
 
     def _script(self, scripted: list[str], t_next: float) -> None:
