@@ -12,6 +12,7 @@ pieces; the maths lives in ``vehicle``, ``control``, ``planning`` and ``geometry
 
 from __future__ import annotations
 
+import bisect
 import math
 import sys
 import time
@@ -28,8 +29,9 @@ from nrtraffic.control.nr_flow import PREDICTORS
 from nrtraffic.demand import shifted_exponential_arrivals
 from nrtraffic.geometry import LanePath, segment_frames, touching_pairs
 from nrtraffic.planning.conflicts import MovementGeometry, classify, conflict_areas
-from nrtraffic.planning.coordinator import REAR_END_TOL_M, Coordinator, Request, ScheduleInfeasible
-from nrtraffic.planning.profiles import packed_position
+from nrtraffic.planning.coordinator import REAR_END_TOL_M, Assignment, Coordinator, Request, ScheduleInfeasible
+from nrtraffic.planning.crossing import CrossingBounds, human_crossing
+from nrtraffic.planning.profiles import from_rest, packed_position
 from nrtraffic.results import VEHICLE_COLUMNS, RunResult, TrajectoryWriter, parse_queues
 from nrtraffic.scenario import TURNS, Scenario
 from nrtraffic.sumo.adapter import SumoSession, VehicleType, sumo_version, write_routes, write_sumocfg
@@ -41,6 +43,10 @@ MIN_CONTROL_ZONE_M = 20.0  # shortest control zone a route may leave after a cut
 STEADY_AFTER_S = 3.0  # DESIGN.md: steady-state tracking error counts after 3 s under control
 PATH_SPACING_M = 0.25  # sampling of the smoothed lane paths [m]
 LEADER_LOOKAHEAD_M = 200.0  # how far along its path a vehicle looks for its leader [m]
+STOP_BEFORE_M = 0.5  # a human driver stops with its front bumper this far before the merging-zone entry [m]
+# slack of a reserved start from rest of a controlled vehicle (its tracking error, in time) [s]
+FROM_REST_SLACK_S = 0.3
+SHARE_STREAM = 0x6875_6D61_6E  # the run seed's stream that draws which vehicles are controlled ("human")
 CHECKPOINT_WALL_S = 10.0  # wall time between checkpoints of the figures (``checkpoint``) [s]
 # parts of the loop timed for ``wall_time_breakdown_s``: the compiled kernel (with the Python that
 # reads its results), SUMO's step (with its collision list), reading and writing SUMO's vehicles,
@@ -109,9 +115,12 @@ class VehicleRecord:
     movement: str = ""
     v_free: float = math.nan  # its free-flow speed: the speed it was sent in with [m/s]
     controlled: bool = True
+    driver: str = "automated"  # or "human" (demand.controlled_share): what kind of vehicle it is
     heading_offset: float = 0.0
     speed_profile: tuple = ()
-    status: str = "waiting"  # waiting -> approaching -> controlled -> released | lost; "sumo" if not controlled
+    # waiting -> approaching -> controlled -> released | lost; "sumo" if not controlled; a human driver:
+    # human (to the stop line) -> reserved (standing, its crossing reserved) -> crossing
+    status: str = "waiting"
     t_enter: float = math.nan
     v_enter: float = math.nan
     s_enter: float = math.nan
@@ -128,6 +137,8 @@ class VehicleRecord:
     min_gap: float = math.inf
     s_last: float = math.nan
     t_held: float = 0.0  # time held at the control-zone entry for want of a feasible schedule [s]
+    hindered: bool = False  # its scheduling waited for a human driver ahead on its lane
+    t_release: float = math.nan  # a human driver: when its reserved crossing starts [s]
     depart_delay: float = 0.0  # SUMO's wait to insert it past its desired departure (a backed-up lane) [s]
     t_arrive: float = math.nan  # when its centre of gravity crossed the control-zone entry [s] ...
     s_arrive: float = math.nan  # ... and where on its path it was then [m] (delay is counted from there)
@@ -235,10 +246,14 @@ class Engine:
                 self.movement_table[a.name] = (a.name, "through", a.route)
 
     def _demand(self) -> list[tuple]:
-        """Departures ``(vehicle_id, movement, depart_s, depart_speed, depart_pos)`` from the run's
-        random generator: per approach, shifted-exponential headways at the approach's rate (times
-        the scale of each ``[[demand.intervals]]`` period); each vehicle draws its movement from the
-        approach's turning movement counts (``[[demand.flows]]``) or the global turning shares."""
+        """Departures ``(vehicle_id, movement, depart_s, depart_speed, depart_pos, type)`` from the
+        run's random generator: per approach, shifted-exponential headways at the approach's rate
+        (times the scale of each ``[[demand.intervals]]`` period); each vehicle draws its movement
+        from the approach's turning movement counts (``[[demand.flows]]``) or the global turning
+        shares. ``type`` is "auto" or "human": in order of departure, each vehicle draws a uniform
+        number from its own stream of the seed (the arrivals do not change with the share) and is
+        a human driver when it is at least ``demand.controlled_share``; a vehicle controlled at one
+        share is controlled at every higher one. ``[[vehicles]]`` keep their ``controlled``."""
         d = self.sc.demand
         rng = np.random.default_rng(self.seed)
         veh = []
@@ -283,7 +298,10 @@ class Engine:
                 raise ValueError(f"vehicle {v.id}: {mv!r} is not a movement ({', '.join(self.movement_table)})")
             veh.append((v.id, mv, v.depart_s, v.depart_speed_mps, v.depart_pos_m))
         veh.sort(key=lambda v: v[2])
-        return veh
+        u = np.random.default_rng([self.seed, SHARE_STREAM]).random(len(veh))
+        share = d.controlled_share
+        listed = {v.id for v in self.sc.vehicles}
+        return [(*v, "human" if (x >= share and v[0] not in listed) else "auto") for v, x in zip(veh, u)]
 
     QUEUE_PERIOD_S = 10.0  # aggregation period of the queue detectors [s]
 
@@ -436,6 +454,27 @@ class Engine:
                   file=sys.stderr)
         return out
 
+    def _stop_lines(self) -> dict[str, tuple[str, float]]:
+        """Where a human driver of each movement stops: the lane and lane position [m] of its front
+        bumper ``STOP_BEFORE_M`` before the merging-zone entry of its centre of gravity, so that
+        its whole body stands outside the merging zone. Raises ValueError when that point lies
+        inside the junction (the merging zone is smaller than the junction)."""
+        out = {}
+        for name, m in self.paths.items():
+            s_front = m.s_merge - STOP_BEFORE_M
+            lane = None
+            for ln in m.lanes:
+                off, scale = m.lane_offset[ln]
+                if off <= s_front + 1e-9:
+                    lane = ln
+            if lane is None or lane.startswith(":"):
+                raise ValueError(f"movement {name}: its merging-zone entry lies inside the junction, where a human "
+                                 f"driver cannot stop (zones.merging_zone_m = {self.sc.zones.merging_zone_m:g} m is "
+                                 "smaller than the junction)")
+            off, scale = m.lane_offset[lane]
+            out[name] = (lane, (s_front - off) / scale)
+        return out
+
     def _write_movements(self) -> None:
         """``movements.json``: each movement's route, zone boundaries, its relation to the others and
         its conflict areas (the stretch of its path, from its merging-zone entry, on which its body
@@ -489,8 +528,13 @@ class Engine:
         self._movement_table()
         demand = self._demand()
         p = self.params
-        vtype = VehicleType(length_m=p.length, width_m=p.width, max_speed_mps=max(self.sc.planning.v_max_mps, 1.0))
-        write_routes(path, vtype, {k: v[2] for k, v in self.movement_table.items()}, demand)
+        v_max = max(self.sc.planning.v_max_mps, 1.0)
+        types = [VehicleType(length_m=p.length, width_m=p.width, max_speed_mps=v_max)]
+        if any(v[5] == "human" for v in demand):
+            h = self.sc.human
+            types.append(VehicleType("human", p.length, p.width, h.min_gap_m, h.accel_mps2, h.decel_mps2, v_max,
+                                     h.sigma, h.tau_s, h.speed_dev, h.car_follow_model))
+        write_routes(path, types, {k: v[2] for k, v in self.movement_table.items()}, demand)
         return demand
 
     # ------------------------------------------------------------------ run
@@ -507,7 +551,8 @@ class Engine:
             demand = self.write_demand(routes)
             # a vehicle's record is made when SUMO inserts it: memory grows with the vehicles that
             # entered so far, not with the whole demand of the run
-            self._scheduled = {vid: (mv, t, speed) for vid, mv, t, speed, _ in demand}
+            self._scheduled = {vid: (mv, t, speed) for vid, mv, t, speed, *_ in demand}
+            self._humans = {v[0] for v in demand if v[5] == "human"}
             self._all_departures = dict(self._scheduled)
             self._listed = {v.id: v for v in self.sc.vehicles}
             copy = sdir / self.network_path.name  # the run directory's own copy, where there is one
@@ -526,6 +571,7 @@ class Engine:
             with self.sumo:
                 self.paths = self._paths(self.sumo)
                 self.relations = self._relations()
+                self.stop_line = self._stop_lines() if (self._humans and self.control) else {}
                 self._write_movements()
                 self.coord = Coordinator(self.sc.coordinator, self.sc.planning, self.relations,
                                          areas=self.conflict_areas)
@@ -552,6 +598,9 @@ class Engine:
         self.batch_ids: list[str] = []
         self.uncontrolled: list[str] = []
         self.released: list[str] = []  # handed back to SUMO, still read every step (_forget_far)
+        self.humans: list[str] = []  # human drivers before they set off across the junction
+        self.starting: list[str] = []  # controlled vehicles standing at the stop line, their start reserved
+        self.unreserved: dict[str, list[str]] = {}  # approach -> its human drivers not yet reserved, in order
         self._pack_paths()
         self._alloc(0)
         approaching: list[str] = []
@@ -596,8 +645,16 @@ class Engine:
                         self.uncontrolled.append(vid)
                         if rec.speed_profile:
                             scripted.append(vid)
+                        if rec.driver == "human" and self.control:
+                            rec.status = "human"
+                            self.sumo.stop_at(vid, *self.stop_line[rec.movement])
+                            self.sumo.colour(vid, "human")
+                            self.humans.append(vid)
+                            self.unreserved.setdefault(rec.approach, []).append(vid)
                 self.snap = self.sumo.snapshot()
                 self._track_uncontrolled(dt)
+                self._humans_step()
+                self._start()
                 t1 = clock()
                 if batch:
                     self._admit_batch(approaching, dt)
@@ -607,13 +664,21 @@ class Engine:
                         rec = self.records[vid]
                         if rec.approach in blocked:
                             continue
+                        if ((rec.hindered or self._blocked_ahead(vid)) and self._request(vid, entry_only=True)
+                                and self._hindered(vid)):  # waits for a human ahead, or starts from the stop line
+                            if rec.status == "starting":
+                                approaching.remove(vid)
+                            else:
+                                blocked.add(rec.approach)
+                            continue
                         state = self._try_admit(vid)
                         if state == "admitted":
                             approaching.remove(vid)
                         elif state == "held":
                             blocked.add(rec.approach)
                             rec.t_held += dt
-                    self._account_waiting([v for v in approaching if self.records[v].status == "held"], dt)
+                    self._account_waiting([v for v in approaching if self.records[v].status == "held"]
+                                          + self.starting, dt)
                 t2 = clock()
                 self._leaders()
                 t3 = clock()
@@ -665,6 +730,7 @@ class Engine:
 
     def _pack_paths(self) -> None:
         self.path_names = list(self.paths)
+        self.path_index = {k: i for i, k in enumerate(self.path_names)}
         xy = [self.paths[k].path.xy for k in self.path_names]
         self.path_off = np.concatenate([[0], np.cumsum([len(a) for a in xy])]).astype(np.int64)
         self.path_xy = np.ascontiguousarray(np.concatenate(xy))
@@ -726,9 +792,11 @@ class Engine:
             return None
         mv, t, speed = self._scheduled.pop(vid)
         lv = self._listed.get(vid)
+        human = vid in self._humans
         rec = self.records[vid] = VehicleRecord(
             vid, self.movement_table[mv][0], t, movement=mv, v_free=speed,
-            controlled=(lv.controlled if lv else True) and self.control,
+            controlled=(lv.controlled if lv else True) and self.control and not human,
+            driver="human" if human else "automated",
             heading_offset=lv.entry_heading_offset_rad if lv else 0.0,
             speed_profile=lv.speed_profile if lv else ())
         return rec
@@ -758,8 +826,11 @@ class Engine:
         cg = self.params.cg_to_front
         x0 = np.array([xf - cg * math.cos(psi), yf - cg * math.sin(psi), v, 0.0, psi + rec.heading_offset, 0.0])
         s_proj, lat0 = mv.path.project(x0[:2])
-        req = Request(vid, rec.approach, self.t, v, mv.s_merge - s_proj, rec.movement, mv.s_exit - mv.s_merge,
-                      mv.v_limit)
+        D = mv.s_merge - s_proj
+        v_lim = mv.v_limit
+        if rec.hindered:  # slowed behind a human: cross no faster than half the bound's acceleration reaches
+            v_lim = min(v_lim, math.sqrt(v * v + self.sc.planning.u_max_mps2 * max(D, 0.0)))
+        req = Request(vid, rec.approach, self.t, v, D, rec.movement, mv.s_exit - mv.s_merge, v_lim, rec.hindered)
         return req, x0, s_proj, lat0
 
     def _try_admit(self, vid: str) -> str:
@@ -793,14 +864,19 @@ class Engine:
                     self.batch_closes = self.t + self.sc.coordinator.batch_window_s
                 self.pending.append(vid)
                 self.sumo.colour(vid, "pending")
+        for vid in list(self.pending):  # behind a human: each step, until its start is reserved
+            if self._hindered(vid) and self.records[vid].status == "starting":
+                self.pending.remove(vid)
         for vid in self.pending:
             if self.records[vid].status == "held":
                 self.records[vid].t_held += dt
-        self._account_waiting(self.pending, dt)
+        self._account_waiting(self.pending + self.starting, dt)
         if not self.pending or self.t < self.batch_closes - 1e-9:
             return
         got = {}
         for vid in self.pending:
+            if self._hindered(vid):  # waits for a human ahead, or starts from the stop line
+                continue
             g = self._request(vid)
             if g is not None and g[0].D > 0.5:
                 got[vid] = g
@@ -813,7 +889,8 @@ class Engine:
                 self._admit(got[req.vehicle_id], a)
         for vid in held:
             self._hold(vid)
-        self.pending = [v for v in self.pending if v in held or v not in got]
+        self.pending = [v for v in self.pending
+                        if (v in held or v not in got) and self.records[v].status != "starting"]
         self.batch_closes = self.t + self.sc.coordinator.batch_window_s if self.pending else math.inf
 
     def _account_waiting(self, vids: list[str], dt: float) -> None:
@@ -831,6 +908,8 @@ class Engine:
 
     def _hold(self, vid: str) -> None:
         rec = self.records[vid]
+        if rec.hindered:  # it drives on to its stop at the stop line (_hindered)
+            return
         if rec.status != "held":
             rec.status = "held"
             self.sumo.hold_speed(vid, 0.0)
@@ -842,6 +921,9 @@ class Engine:
         vid = req.vehicle_id
         rec = self.records[vid]
         mv = self.paths[rec.movement]
+        if rec.hindered and rec.status != "starting":  # scheduled on the move after all: no stop
+            self.sumo.cancel_stop(vid)
+            self.unreserved[rec.approach].remove(vid)
         rec.status = "controlled"
         self.sumo.take_over(vid)
         self.sumo.colour(vid, "controlled")
@@ -893,18 +975,179 @@ class Engine:
                 acc[kb.ACC_STEPS] += 1
             rec.s_last = s_new
 
+    def _blocked_ahead(self, vid: str) -> bool:
+        """Whether a vehicle whose crossing is not reserved yet, a human driver or a controlled
+        vehicle queued behind one, is ahead of ``vid`` on its lane (an approach is one lane, which
+        keeps the order of departure)."""
+        q = self.unreserved.get(self.records[vid].approach)
+        return bool(q) and q[0] != vid and self.records[q[0]].t_depart < self.records[vid].t_depart
+
+    def _hindered(self, vid: str) -> bool:
+        """Whether a controlled vehicle in the control zone must wait for a human driver instead of
+        being scheduled now. When it is first found with an unreserved vehicle ahead on its lane
+        (:meth:`_blocked_ahead`), SUMO is told to stop it at the stop line, and the vehicles behind
+        it wait for it too. Once nothing unreserved is ahead: moving, it is scheduled as any other
+        (:meth:`_admit` cancels the stop; when no merge time fits it drives on to the stop line);
+        standing at the stop line, its start from rest is reserved (:meth:`_reserve_from_rest`,
+        status ``starting``)."""
+        rec = self.records[vid]
+        if rec.status == "starting":
+            return True
+        if not rec.hindered:
+            if not self._blocked_ahead(vid):
+                return False
+            rec.hindered = True
+            self.sumo.stop_at(vid, *self.stop_line[rec.movement])
+            self.sumo.colour(vid, "pending")
+            bisect.insort(self.unreserved[rec.approach], vid, key=lambda v: self.records[v].t_depart)
+            return True
+        if self._blocked_ahead(vid):
+            return True
+        k = self.snap.row.get(vid)
+        lane, pos = self.stop_line[rec.movement]
+        if (k is not None and self.snap.lane[k] == lane and self.snap.lane_pos[k] >= pos - 1.0
+                and self.snap.speed[k] < 0.1 and self.sumo.is_stopped(vid)):
+            self._reserve_from_rest(vid)
+            return True
+        return False
+
+    def _reserve_from_rest(self, vid: str) -> None:
+        """Reserve the start of a controlled vehicle standing at the stop line: from rest at the
+        planning's ``u_max_mps2`` up to its crossing speed (:func:`~nrtraffic.planning.profiles.
+        from_rest`, the plan the kernel will track), its occupancy of each conflict area bounded
+        with ``FROM_REST_SLACK_S`` each side."""
+        rec = self.records[vid]
+        mv = self.paths[rec.movement]
+        k = self.snap.row[vid]
+        s_cg = mv.s_of(self.snap.lane[k], float(self.snap.lane_pos[k])) - self.params.cg_to_front
+        a, v_c = self.sc.planning.u_max_mps2, min(mv.v_limit, self.sc.planning.v_max_mps)
+        bounds = CrossingBounds(a, a, v_c, v_c, FROM_REST_SLACK_S)
+        self._reserve(vid, bounds, s_cg)
+        rec.status = "starting"
+        rec.profile_kind = "from_rest"
+        self.unreserved[rec.approach].remove(vid)
+        self.starting.append(vid)
+        self.sumo.colour(vid, "held")
+
+    def _start(self) -> None:
+        """Controlled vehicles whose reserved start from rest has come: the kernel takes them over."""
+        keep = []
+        for vid in self.starting:
+            rec = self.records[vid]
+            if self.t < rec.t_release - 1e-9:
+                keep.append(vid)
+                continue
+            got = self._request(vid)
+            if got is None:  # no longer seen on its path (not expected)
+                rec.status = "lost"
+                continue
+            req = got[0]
+            mv = self.paths[rec.movement]
+            prof = from_rest(self.t, req.D, self.sc.planning.u_max_mps2, min(mv.v_limit, self.sc.planning.v_max_mps))
+            self.sumo.resume(vid)
+            self._admit(got, Assignment(vid, rec.approach, self.t, prof.t_m, prof, rec.predecessor, rec.relation,
+                                        rec.binding, rec.movement))
+        self.starting = keep
+
+    def _humans_step(self) -> None:
+        """Human drivers at the stop line: a driver standing at its stop (``human`` -> ``reserved``)
+        has its crossing reserved (:meth:`_reserve_human`); a reserved driver sets off when its
+        reservation starts (-> ``crossing``: SUMO drives it on, the figures follow it as any
+        SUMO-driven vehicle)."""
+        if not self.humans:
+            return
+        tab = self.snap
+        keep = []
+        for vid in self.humans:
+            rec = self.records[vid]
+            k = tab.row.get(vid)
+            if k is None:  # left the network (not expected before its crossing)
+                if vid in self.unreserved.get(rec.approach, ()):
+                    self.unreserved[rec.approach].remove(vid)
+                continue
+            if rec.status == "human":
+                lane, pos = self.stop_line[rec.movement]
+                if (tab.lane[k] == lane and tab.lane_pos[k] >= pos - 1.0 and tab.speed[k] < 0.1
+                        and self.sumo.is_stopped(vid)):
+                    mv = self.paths[rec.movement]
+                    self._reserve_human(vid, mv.s_of(lane, float(tab.lane_pos[k])) - self.params.cg_to_front)
+            if rec.status == "reserved" and self.t >= rec.t_release - 1e-9:
+                self.sumo.resume(vid)
+                rec.status = "crossing"
+                self.sumo.colour(vid, "released")
+                continue
+            keep.append(vid)
+        self.humans = keep
+
+    def _reserve_human(self, vid: str, s_cg: float) -> None:
+        """Reserve the crossing of a human driver standing with its centre of gravity at ``s_cg``
+        [m] on its path (:meth:`Coordinator.reserve_crossing`): its occupancy of each conflict area
+        bounded by :class:`~nrtraffic.planning.crossing.CrossingBounds` from the ``[human]``
+        section, its drawn speed factor and its path's speed limit."""
+        rec = self.records[vid]
+        mv = self.paths[rec.movement]
+        h, v_max = self.sc.human, self.sc.planning.v_max_mps
+        factor = self.sumo.speed_factor(vid)
+        bounds = CrossingBounds(a_lo=(1.0 - h.sigma) * h.accel_mps2, a_hi=h.accel_mps2,
+                                v_lo=min(mv.v_limit, v_max) * min(1.0, factor), v_hi=v_max,
+                                step_s=self.sc.sumo.step_length_s)
+        self._reserve(vid, bounds, s_cg)
+        rec.status = "reserved"
+        rec.profile_kind = "human"
+        self.unreserved[rec.approach].remove(vid)
+        self.sumo.colour(vid, "human_reserved")
+
+    def _reserve(self, vid: str, bounds: CrossingBounds, s_cg: float):
+        """Reserve the crossing from rest of a vehicle standing with its centre of gravity at
+        ``s_cg`` [m] on its path, within ``bounds`` (:meth:`Coordinator.reserve_crossing`); its
+        record takes the start, the planned merging-zone entry (latest) and its predecessor."""
+        rec = self.records[vid]
+        mv = self.paths[rec.movement]
+        areas = {other: (mv.s_merge + lo - s_cg, mv.s_merge + hi - s_cg)
+                 for (a, other), (lo, hi) in self.conflict_areas.items() if a == rec.movement}
+        offsets, merge_w, exit_w, v_exit = human_crossing(bounds, areas, mv.s_merge - s_cg, mv.s_exit - s_cg)
+        asg = self.coord.reserve_crossing(vid, rec.approach, rec.movement, self.t, offsets, merge_w, exit_w, v_exit)
+        rec.t_release = asg.t_release
+        rec.t_merge_planned, rec.v_merge_planned = asg.t_merge, asg.profile.v_m
+        rec.predecessor, rec.relation, rec.binding = asg.predecessor, asg.relation, asg.binding
+        return asg
+
+    def _sumo_gaps(self) -> None:
+        """The bumper gap [m] of every SUMO-driven vehicle between its control-zone entry and its
+        merging-zone exit to the vehicle ahead on its path (the leader search of the controlled
+        vehicles), for the figures: human drivers, and every vehicle of a baseline."""
+        vids = [v for v in self.uncontrolled
+                if not math.isnan(self.records[v].t_enter) and math.isnan(self.records[v].t_exit)]
+        if not vids:
+            return
+        tab = self.snap
+        lane_id = self._lane_ids
+        rows = np.array([tab.row.get(v, -1) for v in vids], dtype=np.int64)
+        pid = np.array([self.path_index[self.records[v].movement] for v in vids], dtype=np.int64)
+        n = len(vids)
+        idx, ext, gap = np.empty(n, dtype=np.int64), np.empty((n, 6)), np.empty(n)
+        p = self.params
+        find_leaders(lane_id, tab.lane_pos, tab.x, tab.y, tab.psi, tab.speed, tab.accel, rows, pid,
+                     self.pl_off, self.pl_lane, self.pl_start, self.pl_scale, LEADER_LOOKAHEAD_M, p.cg_to_front,
+                     p.length, idx, ext, gap)
+        for vid, g in zip(vids, gap.tolist()):
+            if g == g:
+                rec = self.records[vid]
+                rec.min_gap = min(rec.min_gap, g)
+
     def _leaders(self) -> None:
         """For each controlled vehicle, the nearest vehicle ahead on the lanes of its own path
         (controlled or SUMO-driven, of any movement: the same lane before a diverge, the same
         outgoing lane after a merge; :func:`nrtraffic.control.leaders.find_leaders`): its batch
         index or its state, and the bumper gap [m] to it, all at time ``t``. Vehicles on other
         lanes (crossing movements) are kept apart by the coordinator, not by the barrier."""
+        tab = self.snap
+        lane_id = self._lane_ids = np.array([self.lane_index.get(ln, -1) for ln in tab.lane], dtype=np.int64)
+        self._sumo_gaps()
         n = len(self.batch_ids)
         if n == 0:
             return
         p = self.params
-        tab = self.snap
-        lane_id = np.array([self.lane_index.get(ln, -1) for ln in tab.lane], dtype=np.int64)
         # each controlled vehicle's row in the table (-1: SUMO no longer lists it), also read by
         # _push_and_release later in the step
         rows = self.batch_rows = np.array([tab.row.get(v, -1) for v in self.batch_ids], dtype=np.int64)
@@ -1073,6 +1316,25 @@ class Engine:
         except ET.ParseError:  # a run that stopped early may leave it unterminated
             return {}
 
+    def _driver_figures(self, adm: pd.DataFrame, done: pd.DataFrame) -> dict:
+        """Figures split by driver (``demand.controlled_share``): the share of human drivers among
+        the vehicles that entered the control zone in the window, mean delay and smallest bumper
+        gap of each kind, and the pairs that collided (SUMO's check or the own one) by the kinds
+        of the two vehicles."""
+        kind = {r.vehicle_id: r.driver for r in self.records.values()}
+        pairs = self.collision_pairs | self.geometric_collisions
+        n_pair = {"automated": 0, "mixed": 0, "human": 0}
+        for a, b in pairs:
+            ka, kb_ = kind.get(a, "automated"), kind.get(b, "automated")
+            n_pair[ka if ka == kb_ else "mixed"] += 1
+        out = {"human_share": float((adm["driver"] == "human").mean()) if len(adm) else None}
+        for d in ("automated", "human"):
+            out[f"vehicles_{d}"] = int((adm["driver"] == d).sum())
+            out[f"mean_delay_{d}_s"] = metrics.mean_or_none(done.loc[done["driver"] == d, "delay_s"])
+            out[f"min_bumper_gap_{d}_m"] = metrics.min_or_none(adm.loc[adm["driver"] == d, "min_bumper_gap_m"])
+        out.update({f"collisions_{k}": v for k, v in n_pair.items()})
+        return out
+
     def _result(self, wall: float, error: BaseException | None, final: bool = True) -> RunResult:
         """The figures so far; ``final`` false for a checkpoint of a run still going (status
         "running", no SUMO timeLoss yet)."""
@@ -1082,8 +1344,8 @@ class Engine:
         paths = getattr(self, "paths", {})
         trips = self._tripinfo(final)
         for rec in sorted(self.records.values(), key=lambda r: r.t_depart):  # in order of departure
-            if rec.status == "waiting" or (self.control and not rec.controlled):
-                continue
+            if rec.status == "waiting" or (self.control and not rec.controlled and rec.driver != "human"):
+                continue  # (a SUMO-driven vehicle of the scenario's own, e.g. a scripted leader)
             ap = paths.get(rec.movement)
             delay = math.nan
             if ap is not None and not math.isnan(rec.t_exit):
@@ -1107,7 +1369,7 @@ class Engine:
                 return v if np.isfinite(v) else math.nan
 
             rows.append({
-                "vehicle_id": rec.vehicle_id, "approach": rec.approach,
+                "vehicle_id": rec.vehicle_id, "approach": rec.approach, "driver": rec.driver,
                 "movement": ap.turn if ap is not None else "",
                 "t_arrive_s": rec.t_enter if math.isnan(rec.t_arrive) else rec.t_arrive,
                 "depart_delay_s": rec.depart_delay,
@@ -1136,8 +1398,11 @@ class Engine:
         w1 = min(w1, sim_t)
         # the measurement window: vehicles that entered the control zone inside it
         inside = veh["t_arrive_s"].between(w0, w1)
-        adm = veh[veh["t_enter_s"].notna() & inside]
+        adm_all = veh[veh["t_enter_s"].notna() & inside]
         done = veh[veh["t_exit_s"].notna() & inside]
+        # the vehicles' own figures (tracking, barriers, gaps) are the automated vehicles'; human
+        # drivers have theirs apart (by_driver)
+        adm = adm_all[adm_all["driver"] == "automated"]
         steps = adm["plant_steps"].sum()
         window = max(w1 - w0, 0.0)
         exits = int(veh["t_exit_s"].between(w0, w1).sum())
@@ -1159,7 +1424,7 @@ class Engine:
             "measure_from_s": w0,
             "measure_to_s": w1,
             "vehicles_spawned": int(sum(r.status != "waiting" for r in self.records.values())),
-            "vehicles_admitted": int(len(adm)),
+            "vehicles_admitted": int(len(adm_all)),
             "vehicles_completed": int(len(done)),
             "throughput_veh_h": throughput,
             "demand_veh_h": demand or None,
@@ -1195,6 +1460,7 @@ class Engine:
             "cbf_lat_active_frac": float((adm["cbf_lat_active_frac"] * adm["plant_steps"]).sum() / steps) if steps else None,
             "cbf_long_fallbacks": int(adm["cbf_long_fallbacks"].sum()) if controlled else None,
             "cbf_lat_fallbacks": int(adm["cbf_lat_fallbacks"].sum()) if controlled else None,
+            **self._driver_figures(adm_all, done),
             "wall_time_breakdown_s": {**self.wall_breakdown,
                                       "qp": getattr(getattr(self, "coord", None), "qp_wall_s", 0.0)},
             "nrtraffic_version": __version__,

@@ -216,10 +216,13 @@ class Demand:
     flows: tuple[DemandFlow, ...] = ()  # turning movement counts per approach; replace rate_veh_h and the shares
     intervals: tuple[DemandInterval, ...] = ()  # periods with scaled demand (a peak)
     sumo_routes: str = ""  # a SUMO demand file (.rou.xml: flows, trips, vehicles) instead of the keys above
+    controlled_share: float = 1.0  # share of the vehicles that are controlled; the others are [human] drivers
 
     def validate(self) -> None:
         if self.entry_speed_mps <= 0:
             raise ScenarioError("demand.entry_speed_mps must be > 0")
+        if not (0.0 <= self.controlled_share <= 1.0):
+            raise ScenarioError(f"demand.controlled_share must be a share in [0, 1], got {self.controlled_share!r}")
         if self.mean_headway_s != 0 and not (0 <= self.min_headway_s < self.mean_headway_s):
             raise ScenarioError("demand needs 0 <= min_headway_s < mean_headway_s (or mean_headway_s = 0)")
         if self.max_vehicles < 0:
@@ -261,6 +264,49 @@ class Demand:
     def headway_s(self) -> float:
         """Mean headway per approach [s] (0: no random arrivals)."""
         return 3600.0 / self.rate_veh_h if self.rate_veh_h > 0 else self.mean_headway_s
+
+
+@dataclass(frozen=True)
+class HumanDriver:
+    """``[human]``: the vehicles that ``demand.controlled_share`` leaves to SUMO (README, Mixed
+    traffic). SUMO's car-following model drives them, in the controlled vehicles' dimensions.
+
+    Their rule at a coordinated junction: a human driver stops with its front bumper at the
+    merging-zone entry (the stop line of a signal-free junction), and when it stands there the
+    coordinator reserves its crossing from a standing start, first come first served with the
+    controlled vehicles' reservations: it may set off at the earliest time at which its occupancy
+    of every conflict area, bounded from both sides, overlaps no other reservation. The bounds:
+    it accelerates at least at ``(1 - sigma) * accel_mps2`` (Krauss's dawdling takes at most
+    ``sigma * accel`` off) up to the slowest speed limit on its path, sets off at most one step
+    after its release, and at most at ``accel_mps2`` up to the planning's ``v_max_mps``. A
+    controlled vehicle behind a human on its lane is scheduled once the human's crossing is
+    reserved, behind it. In a baseline run (SUMO's own junction control) the same drivers obey
+    that control.
+    """
+
+    car_follow_model: str = "Krauss"  # SUMO's car-following model (the reservation's bounds are Krauss's)
+    accel_mps2: float = 2.6  # SUMO's defaults for a passenger car
+    decel_mps2: float = 4.5
+    sigma: float = 0.5  # driver imperfection (random deceleration up to sigma * accel)
+    tau_s: float = 1.0  # desired time headway [s]
+    min_gap_m: float = 2.5  # bumper to bumper at a standstill [m]
+    speed_dev: float = 0.0  # spread of the desired speed around the speed limit (SUMO's speedDev)
+
+    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"car_follow_model": ("Krauss",)}
+
+    def validate(self) -> None:
+        if self.car_follow_model not in self.CHOICES["car_follow_model"]:
+            raise ScenarioError(f"human.car_follow_model must be one of "
+                                f"{', '.join(map(repr, self.CHOICES['car_follow_model']))}, got {self.car_follow_model!r}")
+        for k in ("accel_mps2", "decel_mps2", "tau_s"):
+            if not getattr(self, k) > 0:
+                raise ScenarioError(f"human.{k} must be > 0, got {getattr(self, k)!r}")
+        if not (0.0 <= self.sigma < 1.0):
+            raise ScenarioError(f"human.sigma must be in [0, 1), got {self.sigma!r}")
+        if self.min_gap_m < 0:
+            raise ScenarioError(f"human.min_gap_m must be >= 0, got {self.min_gap_m!r}")
+        if not (0.0 <= self.speed_dev < 0.5):
+            raise ScenarioError(f"human.speed_dev must be in [0, 0.5), got {self.speed_dev!r}")
 
 
 @dataclass(frozen=True)
@@ -417,6 +463,7 @@ _SECTIONS: dict[str, type] = {
     "planning": PlanBounds,
     "coordinator": CoordinatorSettings,
     "demand": Demand,
+    "human": HumanDriver,
     "junction": Junction,
     "barriers": Barriers,
     "disturbances": Disturbances,
@@ -436,6 +483,7 @@ class Scenario:
     planning: PlanBounds
     coordinator: CoordinatorSettings
     demand: Demand
+    human: HumanDriver
     junction: Junction
     barriers: Barriers
     disturbances: Disturbances
@@ -608,6 +656,13 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
             raise ScenarioError(f"demand.sumo_routes: file not found: {routes}")
         if sc.demand.flows or sc.demand.rate_veh_h > 0:
             raise ScenarioError("demand.sumo_routes replaces demand.flows and demand.rate_veh_h: give one of them")
+    if sc.demand.controlled_share < 1.0:
+        if not sc.junction.id:
+            raise ScenarioError("demand.controlled_share < 1 needs a [junction] (human drivers stop at its "
+                                "merging-zone entry)")
+        if sc.coordinator.conflict_model != "conflict_points":
+            raise ScenarioError('demand.controlled_share < 1 needs coordinator.conflict_model = "conflict_points" '
+                                "(human drivers' crossings are reserved per conflict area)")
     if not sc.network_path.is_file():
         raise ScenarioError(f"network file not found: {sc.network_path} (scenario.network = {sc.general.network!r})")
     if sc.controller.plant_step_s > sc.sumo.step_length_s:

@@ -142,6 +142,17 @@ class Assignment:
     movement: str = ""
     t_exit: float = 0.0  # planned merging-zone exit [s]
     plan_intrusion_m: float = float("nan")  # how far the plan enters the gap behind the lane leader's plan [m]
+    t_release: float = float("nan")  # a reserved crossing (:meth:`Coordinator.reserve_crossing`): its start [s]
+    occupancy: dict | None = None  # ... and its occupancy of each conflict area: other movement -> (in, out) [s]
+
+
+@dataclass(frozen=True)
+class Crossing:
+    """Stands for the profile of a reserved crossing that has no plan: ``v_m`` its lowest speed
+    at the merging-zone exit [m/s]."""
+
+    v_m: float
+    kind: str = "human"
 
 
 @dataclass(frozen=True)
@@ -158,6 +169,9 @@ class Request:
     movement: str = ""
     zone_length_m: float = 0.0
     v_limit: float = float("inf")
+    # slowed before its entry by a vehicle it cannot pass (a human driver ahead): it does not keep
+    # an entry speed, so its earliest arrival is the one the bounds allow
+    hindered: bool = False
 
 
 @dataclass
@@ -217,14 +231,15 @@ class Coordinator:
             self._last_on_movement[movement] = a
         return a
 
-    def _earliest(self, v0: float, D: float, v_limit: float) -> float:
+    def _earliest(self, v0: float, D: float, v_limit: float, hindered: bool = False) -> float:
         """Earliest time [s] from the control-zone entry to the merging zone (see :meth:`schedule`)."""
         b = self.bounds
         t_min = min_time(v0, D, b)
-        if self.settings.earliest == "entry_speed" and v0 > 0.0:
+        cruise = self.settings.earliest == "entry_speed" and not hindered
+        if cruise and v0 > 0.0:
             t_min = max(t_min, D / min(v0, b.v_max_mps))
         if v_limit < v0:  # must cross slower than it enters: cruise, then brake on the arc
-            v_cruise = v0 if self.settings.earliest == "entry_speed" else None
+            v_cruise = v0 if cruise else None
             t_min = earliest_fixed(v0, min(v_limit, b.v_max_mps), D, b, v_cruise)
         return t_min
 
@@ -234,7 +249,7 @@ class Coordinator:
         reservations ``(vehicle_id, movement, t_merge, v_m)`` counted besides the committed ones."""
         lane, t0, v0, D, movement, zone_length_m, v_limit = r.lane, r.t0, r.v0, r.D, r.movement, r.zone_length_m, r.v_limit
         b = self.bounds
-        t_early = t0 + self._earliest(v0, D, v_limit)
+        t_early = t0 + self._earliest(v0, D, v_limit, r.hindered)
         t_m, binding, pred = t_early, "earliest", None
         relation = "none"
         prev = self._last_on_lane.get(lane)
@@ -322,37 +337,78 @@ class Coordinator:
                 cost += t_h - e_h
         return cost
 
-    def _first_free(self, t_m: float, movement: str, v: float, extra: tuple = ()) -> tuple[float, str | None]:
+    def _first_free(self, t_m: float, movement: str, v: float, extra: tuple = (),
+                    offsets: dict | None = None) -> tuple[float, str | None]:
         """Earliest merge time from ``t_m`` at which this movement's occupancy of every conflict
         area on its path (entered at ``t + from / v``, left at ``t + to / v``, crossing at ``v``),
         widened by the margin, overlaps no reservation's occupancy of the same area; and the
         vehicle whose reservation pushed it last (None when ``t_m`` was free). ``extra``: tentative
-        reservations ``(vehicle_id, movement, t_merge, v_m)``."""
+        reservations ``(vehicle_id, movement, t_merge, v_m)``. ``offsets`` replaces the constant
+        crossing speed: other movement -> (entry, exit) of the shared area [s after ``t``] (a
+        crossing the coordinator does not steer, :meth:`reserve_crossing`)."""
         margin = self.settings.conflict_margin_s
         blocker = None
-        reserved = [(r.vehicle_id, r.movement, r.t_merge, r.profile.v_m) for r in self._reserved] + list(extra)
+        reserved = [(r.vehicle_id, r.movement, r.t_merge, r.profile.v_m, r.occupancy) for r in self._reserved]
+        reserved += [(*x, None) for x in extra]
+        if offsets is None:
+            def mine_of(other):
+                a = self.areas.get((movement, other))
+                return None if a is None else (a[0] / v, a[1] / v)
+        else:
+            mine_of = offsets.get
         moved = True
         while moved:
             moved = False
-            for r_id, r_mv, r_tm, v_r in reserved:
-                mine = self.areas.get((movement, r_mv))
-                theirs = self.areas.get((r_mv, movement))
-                if mine is None or theirs is None:
+            for r_id, r_mv, r_tm, v_r, occ in reserved:
+                mine = mine_of(r_mv)
+                if mine is None:
                     continue
-                r_in, r_out = r_tm + theirs[0] / v_r, r_tm + theirs[1] / v_r
-                m_in, m_out = t_m + mine[0] / v, t_m + mine[1] / v
+                if occ is None:  # a steered vehicle: constant speed through the zone
+                    theirs = self.areas.get((r_mv, movement))
+                    if theirs is None:
+                        continue
+                    r_in, r_out = r_tm + theirs[0] / v_r, r_tm + theirs[1] / v_r
+                else:  # its reserved occupancy of the area it shares with this movement
+                    w = occ.get(movement)
+                    if w is None:
+                        continue
+                    r_in, r_out = w
+                m_in, m_out = t_m + mine[0], t_m + mine[1]
                 if m_in < r_out + margin - _EPS_S and r_in < m_out + margin - _EPS_S:  # overlap
-                    later = r_out + margin - mine[0] / v  # wait until it has left
+                    later = r_out + margin - mine[0]  # wait until it has left
                     if later > t_m:  # (rounding must not stall the search)
                         t_m = later
                         blocker = r_id
                         moved = True
         return t_m, blocker
 
+    def reserve_crossing(self, vehicle_id: str, lane: str, movement: str, t0: float, offsets: dict,
+                         merge_window: tuple[float, float], exit_window: tuple[float, float],
+                         v_exit_min: float) -> Assignment:
+        """Reserve the crossing of a vehicle the coordinator does not steer (a human driver standing
+        at the merging-zone entry, ``demand.controlled_share``), first come first served: the
+        earliest start ``t >= t0`` at which its occupancy of every conflict area on its path,
+        ``offsets[other] = (earliest entry, latest exit)`` [s after the start] of the area shared
+        with movement ``other``, widened by the margin, overlaps no reservation; every later
+        request must then keep clear of ``t + offsets``. ``merge_window`` and ``exit_window``: its
+        earliest and latest merging-zone entry and exit [s after the start]; ``v_exit_min``: its
+        lowest speed at the exit [m/s] (the spacing of a vehicle behind it on its lane, planned
+        from its latest entry and exit). Returns the assignment, ``t_release`` the start."""
+        t, blocker = self._first_free(t0, movement, 0.0, offsets=offsets)
+        occ = {o: (t + a, t + b) for o, (a, b) in offsets.items()}
+        a = Assignment(vehicle_id, lane, t0, t + merge_window[1], Crossing(max(v_exit_min, 1e-3)), blocker,
+                       "conflict" if blocker else "none", "conflict" if blocker else "earliest", movement,
+                       t + exit_window[1], t_release=t, occupancy=occ)
+        self._last_on_lane[lane] = a
+        self._reserved = [x for x in self._reserved if x.t_exit + self.settings.conflict_margin_s > t0] + [a]
+        return a
+
     def _keep_behind(self, prof: Profile, prev: Assignment, t0: float, v0: float, D: float,
                      t_m: float) -> tuple[Profile, float]:
         """``prof``, or the rear-end constrained profile when ``prof`` runs into the gap behind the
         lane leader's plan before this vehicle merges; with the remaining intrusion [m] (<= 0: none)."""
+        if prev.occupancy is not None:  # a crossing without a plan (a human): the barrier keeps the gap
+            return prof, float("nan")
         gap = self.settings.rear_end_spacing_m
         lead = prev.profile
         shift = lead.D - D  # the leader's position in this vehicle's coordinates is p_lead - shift

@@ -79,7 +79,10 @@ class VehicleTable:
 
 @dataclass(frozen=True)
 class VehicleType:
-    """The SUMO vehicle type of the controlled vehicles (geometry and SUMO's own driving)."""
+    """A SUMO vehicle type: geometry and SUMO's own driving. The controlled vehicles' type
+    (``auto``) drives deterministically (``sigma = 0``, ``speedDev = 0``); human drivers (the
+    ``[human]`` section) have the car-following model's imperfection ``sigma``, reaction time
+    ``tau`` and a spread of desired speeds ``speed_dev``."""
 
     id: str = "auto"
     length_m: float = 4.8
@@ -88,6 +91,16 @@ class VehicleType:
     accel_mps2: float = 2.6
     decel_mps2: float = 4.5
     max_speed_mps: float = 20.0
+    sigma: float = 0.0  # driver imperfection (Krauss: random deceleration up to sigma * accel)
+    tau_s: float = 1.0  # the driver's desired time headway [s]
+    speed_dev: float = 0.0  # standard deviation of the desired speed / speed limit
+    car_follow_model: str = "Krauss"
+
+    def xml(self) -> str:
+        return (f'<vType id="{self.id}" carFollowModel="{self.car_follow_model}" length="{self.length_m}" '
+                f'width="{self.width_m}" minGap="{self.min_gap_m}" accel="{self.accel_mps2}" '
+                f'decel="{self.decel_mps2}" maxSpeed="{self.max_speed_mps}" speedFactor="1" '
+                f'speedDev="{self.speed_dev:g}" sigma="{self.sigma:g}" tau="{self.tau_s:g}"/>')
 
 
 def write_sumocfg(path: Path, network: Path, routes: Path, step_length_s: float) -> None:
@@ -104,27 +117,26 @@ def write_sumocfg(path: Path, network: Path, routes: Path, step_length_s: float)
         f'    </input>\n    <time>\n        <step-length value="{step_length_s:g}"/>\n    </time>\n</configuration>\n')
 
 
-def write_routes(path: Path, vtype: VehicleType, routes: dict[str, tuple[str, ...]], vehicles) -> None:
+def write_routes(path: Path, vtype, routes: dict[str, tuple[str, ...]], vehicles) -> None:
     """Write a SUMO route file.
 
-    ``vehicles``: iterable of ``(vehicle_id, route_name, depart_s, depart_speed_mps[, depart_pos_m])``
-    sorted by departure (``depart_pos_m`` < 0 or absent: SUMO's ``base``, the vehicle just on the
-    lane). Speeds are deterministic (``speedFactor=1``, ``sigma=0``); randomness comes from the
-    arrival times only.
+    ``vtype``: a :class:`VehicleType`, or a list of them (the first is the default).
+    ``vehicles``: iterable of ``(vehicle_id, route_name, depart_s, depart_speed_mps[, depart_pos_m[,
+    type_id]])`` sorted by departure (``depart_pos_m`` < 0 or absent: SUMO's ``base``, the vehicle
+    just on the lane). The default type's speeds are deterministic (``speedFactor=1``,
+    ``sigma=0``); randomness then comes from the arrival times only.
     """
+    types = list(vtype) if isinstance(vtype, (list, tuple)) else [vtype]
     lines = ["<routes>"]
-    lines.append(
-        f'    <vType id="{vtype.id}" length="{vtype.length_m}" width="{vtype.width_m}" minGap="{vtype.min_gap_m}" '
-        f'accel="{vtype.accel_mps2}" decel="{vtype.decel_mps2}" maxSpeed="{vtype.max_speed_mps}" '
-        'speedFactor="1" speedDev="0" sigma="0"/>'
-    )
+    lines += [f"    {t.xml()}" for t in types]
     for name, edges in routes.items():
         lines.append(f'    <route id="{name}" edges="{" ".join(edges)}"/>')
     for vid, route, depart, speed, *rest in vehicles:
         pos = rest[0] if rest and rest[0] >= 0 else "base"
         pos = pos if isinstance(pos, str) else f"{pos:.3f}"
+        tid = rest[1] if len(rest) > 1 else types[0].id
         lines.append(
-            f'    <vehicle id="{vid}" type="{vtype.id}" route="{route}" depart="{depart:.2f}" '
+            f'    <vehicle id="{vid}" type="{tid}" route="{route}" depart="{depart:.2f}" '
             f'departSpeed="{speed:.3f}" departPos="{pos}" departLane="0"/>'
         )
     lines.append("</routes>")
@@ -148,7 +160,8 @@ class SumoSession:
 
     # colours of the vehicles in sumo-gui by their state in the run (RGBA)
     COLOURS = {"approaching": (160, 160, 160, 255), "held": (220, 40, 40, 255), "pending": (240, 180, 0, 255),
-               "controlled": (30, 110, 230, 255), "released": (40, 170, 60, 255)}
+               "controlled": (30, 110, 230, 255), "released": (40, 170, 60, 255), "human": (150, 90, 200, 255),
+               "human_reserved": (230, 110, 200, 255)}
 
     def __init__(self, net: Path, routes: Path, step_length_s: float, seed: int, lateral_resolution_m: float = 0.0,
                  tripinfo: Path | None = None, collisions: Path | None = None, fcd: Path | None = None,
@@ -345,6 +358,32 @@ class SumoSession:
     def hold_speed(self, vid: str, speed: float) -> None:
         """Let SUMO drive the vehicle at a fixed desired speed (safety checks stay on)."""
         self.traci.vehicle.setSpeed(vid, speed)
+
+    def stop_at(self, vid: str, lane: str, pos_m: float) -> None:
+        """Make SUMO's driver stop with its front bumper at ``pos_m`` [m] on ``lane`` (a lane of a
+        normal edge) and wait there until :meth:`resume`; from then on it disregards the right of
+        way at the junction (speed mode 23: every other check stays on), which the coordinator's
+        reservation gives it instead."""
+        edge, index = lane.rsplit("_", 1)
+        v = self.traci.vehicle
+        v.setStop(vid, edge, pos=float(pos_m), laneIndex=int(index), duration=1e7)
+        v.setSpeedMode(vid, DEFAULT_SPEED_MODE & ~8)
+
+    def is_stopped(self, vid: str) -> bool:
+        """Whether a vehicle stands at a stop given by :meth:`stop_at`."""
+        return bool(self.traci.vehicle.isStopped(vid))
+
+    def speed_factor(self, vid: str) -> float:
+        """The vehicle's drawn speed factor: its desired speed over the speed limit."""
+        return float(self.traci.vehicle.getSpeedFactor(vid))
+
+    def cancel_stop(self, vid: str) -> None:
+        """Drop the stop of :meth:`stop_at` before the vehicle reaches it."""
+        self.traci.vehicle.replaceStop(vid, 0, "")
+
+    def resume(self, vid: str) -> None:
+        """End the stop of :meth:`stop_at`: SUMO's driver sets off."""
+        self.traci.vehicle.resume(vid)
 
     def take_over(self, vid: str) -> None:
         """Make a vehicle remote-controlled: speed mode 0, so that SUMO does not cap the speeds
