@@ -46,6 +46,7 @@ LEADER_LOOKAHEAD_M = 200.0  # how far along its path a vehicle looks for its lea
 STOP_BEFORE_M = 0.5  # a human driver stops with its front bumper this far before the merging-zone entry [m]
 # slack of a reserved start from rest of a controlled vehicle (its tracking error, in time) [s]
 FROM_REST_SLACK_S = 0.3
+HUMAN_BODY = "~human"  # suffix of a movement's name for a human driver's body on it (conflict areas)
 SHARE_STREAM = 0x6875_6D61_6E  # the run seed's stream that draws which vehicles are controlled ("human")
 CHECKPOINT_WALL_S = 10.0  # wall time between checkpoints of the figures (``checkpoint``) [s]
 # parts of the loop timed for ``wall_time_breakdown_s``: the compiled kernel (with the Python that
@@ -496,8 +497,13 @@ class Engine:
             "relations": {a: {b: self.relations[(a, b)] for b in self.paths if b != a} for a in self.paths},
             # on a's path, measured from its merging-zone entry [m]: where its body can touch b's
             "conflict_areas": [{"movement": a, "with": b, "from_m": lo, "to_m": hi}
-                               for (a, b), (lo, hi) in sorted(getattr(self, "conflict_areas", {}).items())],
+                               for (a, b), (lo, hi) in sorted(getattr(self, "conflict_areas", {}).items())
+                               if HUMAN_BODY not in a + b],
         }
+        human = [{"movement": a, "with": b, "from_m": lo, "to_m": hi}
+                 for (a, b), (lo, hi) in sorted(getattr(self, "conflict_areas", {}).items()) if HUMAN_BODY in a + b]
+        if human:  # with human drivers: the areas of their bodies ("<movement>~human") against every body
+            doc["conflict_areas_human"] = human
         if self.junction_xy is not None:
             doc["merging_zone"] = {"centre_xy": [float(c) for c in self.junction_xy],
                                    "diameter_m": self.sc.zones.merging_zone_m}
@@ -517,6 +523,15 @@ class Engine:
             h = m.path.heading_at(m.path.s[sel])
             centre = m.path.xy[sel] + ahead * np.stack([np.cos(h), np.sin(h)], -1)
             geo.append(MovementGeometry(m.name, m.lanes[0], m.lanes[-1], centre, m.path.s[sel] - m.s_merge))
+            if self._humans and self.control:
+                # a human driver's body: SUMO moves its front bumper along the lane with the lane's
+                # heading, so on a curve its body cuts further inside than the controlled car's
+                # (centre of gravity on the path); indexed by the same centre-of-gravity positions
+                s_front = np.minimum(m.path.s[sel] + self.params.cg_to_front, m.path.length)
+                hf = m.path.heading_at(s_front)
+                c_h = m.path.xy_at(s_front) - 0.5 * self.params.length * np.stack([np.cos(hf), np.sin(hf)], -1)
+                geo.append(MovementGeometry(m.name + HUMAN_BODY, m.lanes[0], m.lanes[-1], c_h,
+                                            m.path.s[sel] - m.s_merge, hf))
         p, clearance = self.params, self.sc.junction.lateral_clearance_m
         relations = classify(geo, p.length, p.width, clearance)
         self.conflict_areas = conflict_areas(geo, relations, p.length, p.width, clearance)
@@ -1103,10 +1118,11 @@ class Engine:
         record takes the start, the planned merging-zone entry (latest) and its predecessor."""
         rec = self.records[vid]
         mv = self.paths[rec.movement]
+        key = rec.movement + (HUMAN_BODY if rec.driver == "human" else "")  # its body's conflict areas
         areas = {other: (mv.s_merge + lo - s_cg, mv.s_merge + hi - s_cg)
-                 for (a, other), (lo, hi) in self.conflict_areas.items() if a == rec.movement}
+                 for (a, other), (lo, hi) in self.conflict_areas.items() if a == key}
         offsets, merge_w, exit_w, v_exit = human_crossing(bounds, areas, mv.s_merge - s_cg, mv.s_exit - s_cg)
-        asg = self.coord.reserve_crossing(vid, rec.approach, rec.movement, self.t, offsets, merge_w, exit_w, v_exit)
+        asg = self.coord.reserve_crossing(vid, rec.approach, key, self.t, offsets, merge_w, exit_w, v_exit)
         rec.t_release = asg.t_release
         rec.t_merge_planned, rec.v_merge_planned = asg.t_merge, asg.profile.v_m
         rec.predecessor, rec.relation, rec.binding = asg.predecessor, asg.relation, asg.binding

@@ -38,6 +38,14 @@ class MovementGeometry:
     exit_lane: str
     zone_points: np.ndarray  # (n, 2)
     zone_s: np.ndarray | None = None  # (n,) path position of each point [m] (for conflict areas)
+    # (n,) the body's heading at each point [rad]; None: the heading of the polyline of centres (a
+    # body whose centre follows the path); given for a body placed otherwise (a SUMO-driven car,
+    # whose front bumper follows the lane with the lane's heading)
+    zone_heading: np.ndarray | None = None
+
+    @property
+    def body_headings(self) -> np.ndarray:
+        return headings(self.zone_points) if self.zone_heading is None else self.zone_heading
 
 
 def min_distance(a: np.ndarray, b: np.ndarray) -> float:
@@ -75,13 +83,17 @@ def boxes_overlap(c1: np.ndarray, h1: np.ndarray, c2: np.ndarray, h2: np.ndarray
     return overlap
 
 
-def swept_overlap(a: np.ndarray, b: np.ndarray, length: float, width: float) -> bool:
+def swept_overlap(a: np.ndarray, b: np.ndarray, length: float, width: float, ha: np.ndarray | None = None,
+                  hb: np.ndarray | None = None) -> bool:
     """Whether a car of ``length`` x ``width`` [m] following polyline ``a`` and one following
-    ``b`` can touch anywhere along them (each at any of its sampled positions)."""
+    ``b`` can touch anywhere along them (each at any of its sampled positions); ``ha``, ``hb``
+    the bodies' headings [rad] (default: the polylines')."""
     if len(a) == 0 or len(b) == 0:
         return False
-    return _touch_span(np.ascontiguousarray(a), headings(a), np.ascontiguousarray(b), headings(b), length,
-                       width)[0] >= 0
+    ha = headings(a) if ha is None else ha
+    hb = headings(b) if hb is None else hb
+    return _touch_span(np.ascontiguousarray(a), np.ascontiguousarray(ha), np.ascontiguousarray(b),
+                       np.ascontiguousarray(hb), length, width)[0] >= 0
 
 
 def classify(movements: list[MovementGeometry], length_m: float, width_m: float,
@@ -96,7 +108,7 @@ def classify(movements: list[MovementGeometry], length_m: float, width_m: float,
                 rel = SAME_LANE
             elif a.exit_lane == b.exit_lane:
                 rel = CONFLICT
-            elif swept_overlap(a.zone_points, b.zone_points, length_m, width):
+            elif swept_overlap(a.zone_points, b.zone_points, length_m, width, a.body_headings, b.body_headings):
                 rel = CONFLICT
             else:
                 rel = COMPATIBLE
@@ -120,8 +132,9 @@ def conflict_areas(movements: list[MovementGeometry], relations: dict, length_m:
         ma, mb = by_name[a], by_name[b]
         if ma.zone_s is None or len(ma.zone_points) == 0 or len(mb.zone_points) == 0:
             continue
-        i0, i1 = _touch_span(np.ascontiguousarray(ma.zone_points), headings(ma.zone_points),
-                             np.ascontiguousarray(mb.zone_points), headings(mb.zone_points), length_m, width)
+        i0, i1 = _touch_span(np.ascontiguousarray(ma.zone_points), np.ascontiguousarray(ma.body_headings),
+                             np.ascontiguousarray(mb.zone_points), np.ascontiguousarray(mb.body_headings), length_m,
+                             width)
         if i0 >= 0:
             out[(a, b)] = (float(ma.zone_s[i0]), float(ma.zone_s[i1]))
     return out
