@@ -455,25 +455,38 @@ class Engine:
                   file=sys.stderr)
         return out
 
-    def _stop_lines(self) -> dict[str, tuple[str, float]]:
-        """Where a human driver of each movement stops: the lane and lane position [m] of its front
-        bumper ``STOP_BEFORE_M`` before the merging-zone entry of its centre of gravity, so that
-        its whole body stands outside the merging zone. Raises ValueError when that point lies
-        inside the junction (the merging zone is smaller than the junction)."""
+    def _stop_lines(self) -> dict[tuple[str, str], tuple[str, float]]:
+        """Where a vehicle that must stand before it crosses stops, per movement and driver: the
+        lane and lane position [m] of its front bumper.
+
+        - A human driver: at SUMO's stop line (the end of its approach lane), or, where its body
+          would touch a conflict area of its own there (``<movement>~human``), ``STOP_BEFORE_M``
+          short of the first: standing, it blocks no one, and it starts as close to the conflict
+          areas as it may.
+        - A controlled vehicle queued behind a human ("automated"): ``STOP_BEFORE_M`` before the
+          merging-zone entry of its centre of gravity, outside the zone (its start from rest is
+          planned from there).
+
+        Raises ValueError when a stop falls inside the junction (the merging zone is smaller than
+        the junction)."""
         out = {}
+        cg = self.params.cg_to_front
         for name, m in self.paths.items():
-            s_front = m.s_merge - STOP_BEFORE_M
-            lane = None
-            for ln in m.lanes:
-                off, scale = m.lane_offset[ln]
-                if off <= s_front + 1e-9:
-                    lane = ln
-            if lane is None or lane.startswith(":"):
-                raise ValueError(f"movement {name}: its merging-zone entry lies inside the junction, where a human "
-                                 f"driver cannot stop (zones.merging_zone_m = {self.sc.zones.merging_zone_m:g} m is "
-                                 "smaller than the junction)")
-            off, scale = m.lane_offset[lane]
-            out[name] = (lane, (s_front - off) / scale)
+            internal = [m.lane_offset[ln][0] for ln in m.lanes if ln.startswith(":")]
+            s_end = internal[0] if internal else m.path.length
+            firsts = [lo for (a, _), (lo, _hi) in self.conflict_areas.items() if a == name + HUMAN_BODY]
+            s_area = m.s_merge + min(firsts) + cg - STOP_BEFORE_M if firsts else math.inf
+            for driver, s_front in (("automated", m.s_merge - STOP_BEFORE_M), ("human", min(s_end - 0.1, s_area))):
+                lane = None
+                for ln in m.lanes:
+                    if m.lane_offset[ln][0] <= s_front + 1e-9:
+                        lane = ln
+                if lane is None or lane.startswith(":"):
+                    raise ValueError(f"movement {name}: its merging-zone entry lies inside the junction, where a "
+                                     f"vehicle cannot stop (zones.merging_zone_m = {self.sc.zones.merging_zone_m:g} m "
+                                     "is smaller than the junction)")
+                off, scale = m.lane_offset[lane]
+                out[(name, driver)] = (lane, (s_front - off) / scale)
         return out
 
     def _write_movements(self) -> None:
@@ -514,24 +527,78 @@ class Engine:
         d = np.arange(-margin_m, m.s_exit - m.s_merge + margin_m + 1e-9, step_m)
         return d, m.path.xy_at(m.s_merge + d)
 
+    def _body_headings(self, m: Movement, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The controlled car's body heading [rad] at centre-of-gravity positions ``s`` [m] of
+        movement ``m``, at the two ends of its range: the kinematic one (a slow car: its rear axle
+        moves along the body, so the body turns less than the path, by ``asin(l_r kappa)``), and
+        the one the kernel gives crossing at the movement's crossing speed (its tyres slip
+        besides). On a tight turn both differ from the path's heading by 0.2-0.4 rad, which turns
+        the body's corners out by most of a metre."""
+        p = self.params
+        h = np.unwrap(m.path.heading_at(m.path.s))
+        n = max(1, int(round(1.0 / PATH_SPACING_M)))  # curvature over 2 m
+        kappa = np.zeros_like(h)
+        if len(h) > 2 * n:
+            kappa[n:-n] = (h[2 * n:] - h[:-2 * n]) / (m.path.s[2 * n:] - m.path.s[:-2 * n])
+        kin = np.interp(s, m.path.s, h - np.arcsin(np.clip(p.lr * kappa, -1.0, 1.0)))
+        return kin, self._crossing_headings(m, s)
+
+    def _crossing_headings(self, m: Movement, s: np.ndarray) -> np.ndarray:
+        """Body heading [rad] at positions ``s`` of a controlled car that the kernel drives through
+        movement ``m``'s merging zone at its crossing speed (``min(v_limit, v_max)``, the plan of
+        ``terminal_speed = "fixed"``), alone, barriers on, entering 30 m before the zone on the
+        path."""
+        v = min(m.v_limit, self.sc.planning.v_max_mps)
+        pid = self.path_index[m.name]
+        s0 = max(m.s_merge - 30.0, float(m.path.s[0]))
+        xy0 = m.path.xy_at(np.array([s0]))[0]
+        X = np.array([[xy0[0], xy0[1], v, 0.0, float(m.path.heading_at(np.array([s0]))[0]), 0.0]])
+        prof = np.zeros((1, N_PROFILE_SEG, 5))
+        prof[0, :, 0] = np.arange(N_PROFILE_SEG) * 1e9
+        prof[0, :, 2] = v  # constant speed
+        out = np.full((1, kb.N_OUT), np.nan)
+        out[0, kb.OUT_S] = s0
+        args = (self.cfg, self.plant_p, self.pred_p, self.u_lo, self.u_hi, prof, np.zeros(1), np.array([s0]),
+                np.array([pid], dtype=np.int64), self.path_off, self.path_xy, self.path_s, self.path_frames,
+                np.array([max(0, int(np.searchsorted(m.path.s, s0)) - 1)], dtype=np.int64),
+                np.full(1, kb.NO_LEADER, dtype=np.int64), np.zeros((1, 6)), kb.new_acc(1), out,
+                np.zeros((1, 1, 0)), np.zeros((1, 2)), X.copy())
+        U = np.zeros((1, 2))
+        ss, hs = [s0], [X[0, 4]]
+        t, dt = 0.0, self.sc.sumo.step_length_s  # sampled every SUMO step (well under a metre)
+        while ss[-1] < m.s_exit + 1.0 and t < 600.0:
+            kb.advance(X, U, t, self.n_sub, *args)
+            t += dt
+            ss.append(float(out[0, kb.OUT_S]))
+            hs.append(float(X[0, 4]))
+        hs = np.unwrap(np.array(hs))
+        return np.interp(s, np.array(ss), hs)
+
     def _relations(self) -> dict:
         geo = []
         for m in self.paths.values():
             sel = (m.path.s >= m.s_merge) & (m.path.s <= m.s_exit)
-            # the path carries the centre of gravity; the body's centre is ahead of it by this [m]
+            # the path carries the centre of gravity; the body's centre is ahead of it by this [m],
+            # along the body's heading, which lies between its two ends (_body_headings): both are
+            # swept, interleaved so that the points stay in order of the path
             ahead = self.params.cg_to_front - 0.5 * self.params.length
-            h = m.path.heading_at(m.path.s[sel])
-            centre = m.path.xy[sel] + ahead * np.stack([np.cos(h), np.sin(h)], -1)
-            geo.append(MovementGeometry(m.name, m.lanes[0], m.lanes[-1], centre, m.path.s[sel] - m.s_merge))
+            s_zone = m.path.s[sel]
+            h2 = np.stack(self._body_headings(m, s_zone), -1).reshape(-1)
+            xy2 = np.repeat(m.path.xy[sel], 2, axis=0)
+            centre = xy2 + ahead * np.stack([np.cos(h2), np.sin(h2)], -1)
+            geo.append(MovementGeometry(m.name, m.lanes[0], m.lanes[-1], centre, np.repeat(s_zone - m.s_merge, 2),
+                                        h2))
             if self._humans and self.control:
-                # a human driver's body: SUMO moves its front bumper along the lane with the lane's
-                # heading, so on a curve its body cuts further inside than the controlled car's
-                # (centre of gravity on the path); indexed by the same centre-of-gravity positions
+                # a human driver's body: SUMO moves its front bumper along the lane and places its
+                # rear on the lane one length behind (the body is that chord), so on a curve it
+                # cuts further inside than the controlled car's (centre of gravity on the path,
+                # heading along it); indexed by the same centre-of-gravity positions
                 s_front = np.minimum(m.path.s[sel] + self.params.cg_to_front, m.path.length)
-                hf = m.path.heading_at(s_front)
-                c_h = m.path.xy_at(s_front) - 0.5 * self.params.length * np.stack([np.cos(hf), np.sin(hf)], -1)
-                geo.append(MovementGeometry(m.name + HUMAN_BODY, m.lanes[0], m.lanes[-1], c_h,
-                                            m.path.s[sel] - m.s_merge, hf))
+                front = m.path.xy_at(s_front)
+                rear = m.path.xy_at(np.maximum(s_front - self.params.length, 0.0))
+                chord = front - rear
+                geo.append(MovementGeometry(m.name + HUMAN_BODY, m.lanes[0], m.lanes[-1], 0.5 * (front + rear),
+                                            m.path.s[sel] - m.s_merge, np.arctan2(chord[:, 1], chord[:, 0])))
         p, clearance = self.params, self.sc.junction.lateral_clearance_m
         relations = classify(geo, p.length, p.width, clearance)
         self.conflict_areas = conflict_areas(geo, relations, p.length, p.width, clearance)
@@ -585,6 +652,7 @@ class Engine:
             )
             with self.sumo:
                 self.paths = self._paths(self.sumo)
+                self._pack_paths()
                 self.relations = self._relations()
                 self.stop_line = self._stop_lines() if (self._humans and self.control) else {}
                 self._write_movements()
@@ -616,7 +684,6 @@ class Engine:
         self.humans: list[str] = []  # human drivers before they set off across the junction
         self.starting: list[str] = []  # controlled vehicles standing at the stop line, their start reserved
         self.unreserved: dict[str, list[str]] = {}  # approach -> its human drivers not yet reserved, in order
-        self._pack_paths()
         self._alloc(0)
         approaching: list[str] = []
         scripted: list[str] = []
@@ -662,7 +729,7 @@ class Engine:
                             scripted.append(vid)
                         if rec.driver == "human" and self.control:
                             rec.status = "human"
-                            self.sumo.stop_at(vid, *self.stop_line[rec.movement])
+                            self.sumo.stop_at(vid, *self.stop_line[rec.movement, rec.driver])
                             self.sumo.colour(vid, "human")
                             self.humans.append(vid)
                             self.unreserved.setdefault(rec.approach, []).append(vid)
@@ -1012,14 +1079,14 @@ class Engine:
             if not self._blocked_ahead(vid):
                 return False
             rec.hindered = True
-            self.sumo.stop_at(vid, *self.stop_line[rec.movement])
+            self.sumo.stop_at(vid, *self.stop_line[rec.movement, rec.driver])
             self.sumo.colour(vid, "pending")
             bisect.insort(self.unreserved[rec.approach], vid, key=lambda v: self.records[v].t_depart)
             return True
         if self._blocked_ahead(vid):
             return True
         k = self.snap.row.get(vid)
-        lane, pos = self.stop_line[rec.movement]
+        lane, pos = self.stop_line[rec.movement, rec.driver]
         if (k is not None and self.snap.lane[k] == lane and self.snap.lane_pos[k] >= pos - 1.0
                 and self.snap.speed[k] < 0.1 and self.sumo.is_stopped(vid)):
             self._reserve_from_rest(vid)
@@ -1081,7 +1148,7 @@ class Engine:
                     self.unreserved[rec.approach].remove(vid)
                 continue
             if rec.status == "human":
-                lane, pos = self.stop_line[rec.movement]
+                lane, pos = self.stop_line[rec.movement, rec.driver]
                 if (tab.lane[k] == lane and tab.lane_pos[k] >= pos - 1.0 and tab.speed[k] < 0.1
                         and self.sumo.is_stopped(vid)):
                     mv = self.paths[rec.movement]
@@ -1403,7 +1470,7 @@ class Engine:
                 "cbf_long_fallbacks": a[kb.ACC_LONG_FALLBACK], "cbf_lat_fallbacks": a[kb.ACC_LAT_FALLBACK],
                 "min_h_long": fin(a[kb.ACC_MIN_H_LONG]), "min_h_lat": fin(a[kb.ACC_MIN_H_LAT]),
                 "plant_steps": steps if rec.controlled else 0.0,
-                "t_held_s": rec.t_held, "sumo_time_loss_s": trips.get(rec.vehicle_id, (math.nan,))[0],
+                "t_held_s": rec.t_held, "t_release_s": rec.t_release, "sumo_time_loss_s": trips.get(rec.vehicle_id, (math.nan,))[0],
                 "stops": trips.get(rec.vehicle_id, (math.nan, math.nan))[1],
                 "status": rec.status,
             })

@@ -227,7 +227,8 @@ def time_space(traj: pd.DataFrame, vehicles: pd.DataFrame, movements: dict, path
     mvs = movements["movements"]
     approaches = sorted({m["approach"] for m in mvs.values()})
     fig, axes = plt.subplots(len(approaches), 1, figsize=(8.0, 2.2 * len(approaches)), sharex=True, squeeze=False)
-    colours = {"left": "tab:orange", "straight": "tab:blue", "right": "tab:green", "uturn": "tab:purple"}
+    colours = {"left": "tab:orange", "straight": "tab:blue", "right": "tab:green", "uturn": "tab:purple",
+               "through": "tab:blue"}
     info = vehicles.set_index("vehicle_id")[["approach", "movement"]]
     traj = traj.join(info, on="vehicle_id")
     for ax, appr in zip(axes[:, 0], approaches):
@@ -241,7 +242,8 @@ def time_space(traj: pd.DataFrame, vehicles: pd.DataFrame, movements: dict, path
         ax.set_ylim(0, d1 + 10)
     handles = [plt.Line2D([], [], color=c, label=k) for k, c in colours.items()
                if k in set(vehicles["movement"])]
-    axes[0, 0].legend(handles=handles, fontsize=7, ncol=len(handles), loc="upper left")
+    if handles:
+        axes[0, 0].legend(handles=handles, fontsize=7, ncol=len(handles), loc="upper left")
     axes[0, 0].set_title("distance from the control-zone entry while under control (merging zone shaded)",
                          fontsize=9)
     axes[-1, 0].set_xlabel("time [s]")

@@ -265,6 +265,9 @@ def sweep_figures(df: pd.DataFrame, summ: pd.DataFrame, out: Path) -> list[str]:
         return []
     figure(summ, out / "sweep.png")
     seed_figure(df, out / "sweep_seeds.png")
+    if has_humans(df):
+        driver_figure(df, summ, out / "drivers.png")
+        return ["sweep.png", "drivers.png", "sweep_seeds.png"]
     return ["sweep.png", "sweep_seeds.png"]
 
 
@@ -381,6 +384,8 @@ def write_tables(df: pd.DataFrame, out: Path, figures=sweep_figures) -> None:
     snote, stab = safety_table(df)
     if len(stab):
         tables.append((snote, stab))
+    if has_humans(df):
+        tables.append(driver_table(summ, df))
     (out / "sweep.md").write_text("\n".join(markdown(n, t) for n, t in tables))
     names = figures(df, summ, out)
     from nrtraffic.report import sweep_report
@@ -462,6 +467,95 @@ def safety_table(df: pd.DataFrame) -> tuple[str, pd.DataFrame]:
                      f"{int(g['cbf_long_fallbacks'].sum())} / {int(g['cbf_lat_fallbacks'].sum())}",
                      f"{int(g['collisions'].sum())} / {int(g['collisions_geometric'].sum())}"])
     return note, pd.DataFrame(rows, columns=columns)
+
+
+def has_humans(df: pd.DataFrame) -> bool:
+    """Whether any run of the sweep had human drivers (``demand.controlled_share < 1``)."""
+    return "human_share" in df and bool((pd.to_numeric(df["human_share"], errors="coerce") > 0).any())
+
+
+def driver_table(summ: pd.DataFrame, df: pd.DataFrame) -> tuple[str, pd.DataFrame]:
+    """Per grid point and control, the figures split by driver (mixed traffic): the share of human
+    drivers, the mean delay of each kind (mean over seeds with the 95 % confidence half-width), the
+    smallest bumper gap of each kind over the runs, and the colliding pairs by the kinds of the two
+    vehicles, summed over the runs (a pair that SUMO's check and the own check both saw counts
+    once)."""
+    keys = grid_keys(summ)
+    ok = df[df["status"] == "ok"]
+    note = ("By driver: automated vehicles (controlled by nrtraffic; in SUMO's controls driven by SUMO as "
+            "a deterministic driver) and human drivers ([human], SUMO's Krauss driver). Delay: mean over "
+            "seeds ± 95 % half-width; gap: smallest bumper gap to the vehicle ahead on the same path, "
+            "control zone and merging zone, over the runs; collisions: colliding pairs summed over the runs, "
+            "by the kinds of the two vehicles.")
+    columns = keys + ["control", "human share", "delay automated [s]", "delay human [s]", "min gap automated [m]",
+                      "min gap human [m]", "collisions: automated / mixed / human"]
+
+    def f(r, k):
+        m, c = r.get(f"{k}_mean", math.nan), r.get(f"{k}_ci95", math.nan)
+        return "n/a" if m != m else f"{m:.1f}" + ("" if c != c else f" ± {c:.1f}")
+
+    rows = []
+    for _, r in summ.iterrows():
+        sel = ok["control"] == r["control"]
+        for k in keys:
+            sel &= ok[k] == r[k]
+        g = ok[sel]
+
+        def lo(k):
+            x = pd.to_numeric(g[k], errors="coerce").min() if k in g else math.nan
+            return "n/a" if x != x else f"{x:.2f}"
+
+        def total(k):
+            return f"{int(pd.to_numeric(g[k], errors='coerce').fillna(0).sum())}" if k in g else "n/a"
+
+        share = r.get("human_share_mean", math.nan)
+        rows.append([f"{r[k]}" for k in keys] + [
+            r["control"], "n/a" if share != share else f"{100 * share:.0f} %", f(r, "mean_delay_automated_s"),
+            f(r, "mean_delay_human_s"), lo("min_bumper_gap_automated_m"), lo("min_bumper_gap_human_m"),
+            f"{total('collisions_automated')} / {total('collisions_mixed')} / {total('collisions_human')}"])
+    return note, pd.DataFrame(rows, columns=columns)
+
+
+def driver_figure(df: pd.DataFrame, summ: pd.DataFrame, path: Path) -> None:
+    """Mixed traffic: mean delay of automated vehicles and of human drivers, and colliding pairs
+    per run, against the grid value per control (means over seeds; band: 95 % interval)."""
+    from nrtraffic.plots import plt
+
+    xlabel, x, ticks = _x_axis(summ)
+    if xlabel == "demand.controlled_share":
+        xlabel = "share of controlled vehicles"
+    fig, axes = plt.subplots(1, 3, figsize=(12.5, 3.8))
+    ok = df[df["status"] == "ok"].copy()
+    ok["pairs"] = sum(pd.to_numeric(ok.get(f"collisions_{k}"), errors="coerce").fillna(0)
+                      for k in ("automated", "mixed", "human"))
+    for control, g in summ.groupby("control", sort=False):
+        xs = x[g.index].to_numpy()
+        order = xs.argsort()
+        line = None
+        for ax, k in zip(axes[:2], ("mean_delay_automated_s", "mean_delay_human_s")):
+            m = g[f"{k}_mean"].to_numpy()[order]
+            c = g[f"{k}_ci95"].fillna(0.0).to_numpy()[order]
+            line, = ax.plot(xs[order], m, marker="o", label=control,
+                            **({} if line is None else {"color": line.get_color()}))
+            ax.fill_between(xs[order], m - c, m + c, color=line.get_color(), alpha=0.2, linewidth=0)
+        per_run = []
+        for _, r in g.iloc[order].iterrows():
+            sel = ok["control"] == control
+            for k in grid_keys(summ):
+                sel &= ok[k] == r[k]
+            per_run.append(float(ok.loc[sel, "pairs"].mean()) if sel.any() else math.nan)
+        axes[2].plot(xs[order], per_run, marker="o", color=line.get_color(), label=control)
+    for ax, label in zip(axes, ("mean delay, automated [s]", "mean delay, human drivers [s]",
+                                "colliding pairs per run")):
+        ax.set(xlabel=xlabel, ylabel=label)
+        ax.grid(alpha=0.3)
+        if ticks:
+            ax.set_xticks(range(len(ticks)), ticks, rotation=20, fontsize=7)
+    axes[0].legend(fontsize=8)
+    fig.suptitle("mixed traffic, by driver: mean over seeds, band: 95 % confidence interval", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
 
 
 def markdown(note: str, tab: pd.DataFrame) -> str:

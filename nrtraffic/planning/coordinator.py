@@ -393,12 +393,27 @@ class Coordinator:
         request must then keep clear of ``t + offsets``. ``merge_window`` and ``exit_window``: its
         earliest and latest merging-zone entry and exit [s after the start]; ``v_exit_min``: its
         lowest speed at the exit [m/s] (the spacing of a vehicle behind it on its lane, planned
-        from its latest entry and exit). Returns the assignment, ``t_release`` the start."""
-        t, blocker = self._first_free(t0, movement, 0.0, offsets=offsets)
+        from its latest entry and exit). Returns the assignment, ``t_release`` the start.
+
+        Behind the last vehicle ``j`` of its lane, as :meth:`schedule` spaces a lane: its earliest
+        entry no sooner than ``h_min`` after j's (latest) entry, and its earliest exit no sooner
+        than ``delta / max(v_exit_min, v_min)`` after j's (latest) exit, so that it does not start
+        before the vehicle ahead of it and the vehicle ahead does not hold it back."""
+        t_start, binding, pred, relation = t0, "earliest", None, "none"
+        prev = self._last_on_lane.get(lane)
+        if prev is not None:
+            spacing_t = self.settings.rear_end_spacing_m / max(v_exit_min, self.bounds.v_min_mps)
+            t_same = max(prev.t_merge + self.settings.min_merge_headway_s - merge_window[0],
+                         prev.t_exit + spacing_t - exit_window[0])
+            pred, relation = prev.vehicle_id, "same_lane"
+            if t_same > t_start:
+                t_start, binding = t_same, "rear_end"
+        t, blocker = self._first_free(t_start, movement, 0.0, offsets=offsets)
+        if blocker is not None:
+            pred, relation, binding = blocker, "conflict", "conflict"
         occ = {o: (t + a, t + b) for o, (a, b) in offsets.items()}
-        a = Assignment(vehicle_id, lane, t0, t + merge_window[1], Crossing(max(v_exit_min, 1e-3)), blocker,
-                       "conflict" if blocker else "none", "conflict" if blocker else "earliest", movement,
-                       t + exit_window[1], t_release=t, occupancy=occ)
+        a = Assignment(vehicle_id, lane, t0, t + merge_window[1], Crossing(max(v_exit_min, 1e-3)), pred, relation,
+                       binding, movement, t + exit_window[1], t_release=t, occupancy=occ)
         self._last_on_lane[lane] = a
         self._reserved = [x for x in self._reserved if x.t_exit + self.settings.conflict_margin_s > t0] + [a]
         return a

@@ -1,0 +1,174 @@
+"""Mixed traffic (demand.controlled_share, README: Mixed traffic): the shares drawn by seed, the
+bounds of a human driver's start from rest against SUMO's own driver, the reservation of a crossing
+against the coordinator's rule, and a mixed run on cross4."""
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from nrtraffic import scenario
+from nrtraffic.engine import Engine
+from nrtraffic.planning.coordinator import Coordinator, CoordinatorSettings
+from nrtraffic.planning.crossing import CrossingBounds, human_crossing, speed_from_rest, time_from_rest
+from nrtraffic.planning.profiles import PlanBounds, from_rest
+from nrtraffic.scenario import ScenarioError
+from nrtraffic.sumo.adapter import SumoSession, VehicleType, write_routes
+
+CROSS4 = Path(__file__).resolve().parents[1] / "sumo_scenarios" / "cross4"
+
+
+def _demand(share, seed=3, duration=600.0):
+    sc = scenario.load(CROSS4, [f"demand.controlled_share={share}", f"scenario.duration_s={duration}"])
+    eng = Engine(sc, Path("/nonexistent"), seed=seed)
+    eng._movement_table()
+    return eng._demand()
+
+
+def test_shares_are_drawn_by_seed_and_nested():
+    runs = {share: _demand(share) for share in (0.0, 0.25, 0.5, 1.0)}
+    # the arrivals themselves do not depend on the share
+    base = [v[:5] for v in runs[1.0]]
+    for d in runs.values():
+        assert [v[:5] for v in d] == base
+    humans = {share: {v[0] for v in d if v[5] == "human"} for share, d in runs.items()}
+    assert humans[1.0] == set() and humans[0.0] == {v[0] for v in base}
+    assert humans[0.5] <= humans[0.25] <= humans[0.0]  # controlled at one share, controlled above it
+    assert _demand(0.5) == runs[0.5]  # reproducible for its seed
+    assert _demand(0.5, seed=4) != runs[0.5]
+    # the realised share of 0.25 controlled: a binomial draw, within 4 standard deviations
+    n = len(base)
+    k = n - len(humans[0.25])
+    assert abs(k - 0.25 * n) < 4 * math.sqrt(n * 0.25 * 0.75)
+
+
+def test_time_from_rest_closed_form_and_derivative():
+    a, v_cap = 2.0, 10.0
+    assert time_from_rest(9.0, a, v_cap) == pytest.approx(3.0)  # 1/2 a t^2 = 9
+    # past the cap: 25 m to reach it in 5 s, then cruise
+    assert time_from_rest(45.0, a, v_cap) == pytest.approx(5.0 + 20.0 / 10.0)
+    for d in (1.0, 10.0, 24.9, 25.1, 60.0):  # dT/dd is 1 / speed there
+        h = 1e-6
+        dT = (time_from_rest(d + h, a, v_cap) - time_from_rest(d - h, a, v_cap)) / (2 * h)
+        assert dT == pytest.approx(1.0 / speed_from_rest(d, a, v_cap), rel=1e-5)
+    prof = from_rest(2.0, 30.0, a, v_cap)  # the controlled vehicle's plan from the stop line
+    p, v, u = prof.evaluate(2.0 + time_from_rest(30.0, a, v_cap))
+    assert float(p) == pytest.approx(30.0) and float(v) == pytest.approx(10.0)
+    assert prof.t_m == pytest.approx(2.0 + time_from_rest(30.0, a, v_cap))
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_sumo_human_start_from_rest_lies_within_the_bounds(tmp_path, seed):
+    """SUMO's Krauss driver (sigma 0.5) stops on cross4's west approach, is released, and goes
+    straight across: the time it takes to cover every distance lies between the bounds the
+    reservation uses."""
+    net = CROSS4 / "net.net.xml"
+    routes = tmp_path / "r.rou.xml"
+    human = VehicleType("human", 4.8, 1.9, 2.5, 2.6, 4.5, 13.89, sigma=0.5, tau_s=1.0)
+    write_routes(routes, [VehicleType(), human], {"ws": ("W_in", "E_out")}, [("h", "ws", 0.0, 13.89, -1.0, "human")])
+    h = 0.1
+    with SumoSession(net, routes, h, seed) as sumo:
+        sumo.step()
+        assert list(sumo.departed()) == ["h"]  # (subscribes it for the snapshots)
+        sumo.stop_at("h", "W_in_0", 480.0)
+        for _ in range(600):
+            sumo.step()
+            if sumo.is_stopped("h"):
+                break
+        assert sumo.is_stopped("h")
+        for _ in range(20):  # stands a while
+            sumo.step()
+        x0 = sumo.snapshot().x[0]
+        factor = sumo.speed_factor("h")
+        sumo.resume("h")
+        t_rel, xs = sumo.time, []
+        for _ in range(200):
+            sumo.step()
+            tab = sumo.snapshot()
+            xs.append((sumo.time - t_rel, float(tab.x[0]) - x0))
+    b = CrossingBounds(0.5 * 2.6, 2.6, 13.89 * min(1.0, factor), 13.89, h)
+    t, d = np.array(xs).T
+    assert d[-1] > 60.0
+    for dist in np.arange(1.0, 60.0, 1.0):
+        reached = t[np.argmax(d >= dist)]  # the step at the end of which it has covered dist
+        t_in, t_out = b.window(dist, dist)
+        assert t_in - 1e-9 <= reached <= t_out + h + 1e-9, (dist, reached, t_in, t_out)
+
+
+def _coordinator():
+    settings = CoordinatorSettings(terminal_speed="fixed", conflict_model="conflict_points", conflict_margin_s=1.0)
+    # movement a crosses b: on a's path the shared area is 10-16 m into the zone, on b's 4-12 m
+    areas = {("a", "b"): (10.0, 16.0), ("b", "a"): (4.0, 12.0)}
+    return Coordinator(settings, PlanBounds(v_min_mps=1.0, v_max_mps=14.0, u_min_mps2=-3.0, u_max_mps2=2.5),
+                       areas=areas)
+
+
+def test_crossing_waits_for_a_reserved_vehicle_and_is_respected():
+    c = _coordinator()
+    # b: a steered vehicle entering the zone at t = 20 s at 10 m/s: in the shared area 20.4-21.2 s
+    asg_b = c.schedule("b1", "lane_b", t0=0.0, v0=10.0, D=200.0, movement="b", zone_length_m=30.0, v_limit=10.0)
+    assert asg_b.t_merge == pytest.approx(20.0)
+    # a human on a, standing 3 m before the zone, asking at t = 19 s
+    bounds = CrossingBounds(1.3, 2.6, 10.0, 14.0, 0.1)
+    offsets, merge_w, exit_w, v_exit = human_crossing(bounds, {"b": (13.0, 19.0)}, 3.0, 33.0)
+    asg = c.reserve_crossing("h1", "lane_a", "a", 19.0, offsets, merge_w, exit_w, v_exit)
+    # it may only start once its earliest entry comes a margin after b has left: the closed form
+    t_free = 20.0 + 12.0 / 10.0 + 1.0 - offsets["b"][0]
+    assert asg.t_release == pytest.approx(t_free)
+    assert asg.predecessor == "b1" and asg.relation == "conflict"
+    assert asg.t_merge == pytest.approx(t_free + merge_w[1])
+    # a steered vehicle on b asking later must clear the human's latest exit of the area + margin
+    asg_b2 = c.schedule("b2", "lane_b", t0=19.5, v0=10.0, D=50.0, movement="b", zone_length_m=30.0, v_limit=10.0)
+    h_in, h_out = asg.occupancy["b"]
+    b_in, b_out = asg_b2.t_merge + 4.0 / 10.0, asg_b2.t_merge + 12.0 / 10.0
+    assert b_in >= h_out + 1.0 - 1e-9 or b_out + 1.0 <= h_in + 1e-9
+    assert asg_b2.predecessor == "h1" and asg_b2.binding == "conflict"  # (unhindered it would come at 24.5 s)
+
+
+def test_mixed_traffic_settings_are_checked():
+    with pytest.raises(ScenarioError, match="controlled_share"):
+        scenario.load(CROSS4, ["demand.controlled_share=1.5"])
+    with pytest.raises(ScenarioError, match="conflict_points"):
+        scenario.load(CROSS4, ["demand.controlled_share=0.5", 'coordinator.conflict_model="zone"',
+                               'coordinator.policy="fifo"', 'coordinator.terminal_speed="free"'])
+    with pytest.raises(ScenarioError, match="human.sigma"):
+        scenario.load(CROSS4, ["human.sigma=1.0"])
+    with pytest.raises(ScenarioError, match="unknown key human.reaction"):
+        scenario.load(CROSS4, ["human.reaction=1.0"])
+
+
+@pytest.fixture(scope="module")
+def mixed_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("mixed")
+    sc = scenario.load(CROSS4, ["demand.controlled_share=0.5", "outputs.warmup_s=0"])
+    res = Engine(sc, out, seed=2, duration_s=300.0).run()
+    return res, sc
+
+
+def test_mixed_run_is_safe_and_keeps_its_reservations(mixed_run):
+    res, sc = mixed_run
+    s, v = res.summary, res.vehicles
+    assert s["status"] == "ok"
+    assert s["collisions"] == 0 and s["collisions_geometric"] == 0
+    assert set(v["driver"]) == {"automated", "human"}
+    assert s["vehicles_automated"] + s["vehicles_human"] == s["vehicles_admitted"]
+    crossed = v[(v["driver"] == "human") & v["t_merge_actual_s"].notna()]
+    assert len(crossed) > 10
+    # every human entered the merging zone after its release, and no later than its reservation's
+    # latest entry, which the others were scheduled around
+    assert (crossed["t_merge_actual_s"] >= crossed["t_release_s"]).all()
+    assert (crossed["t_merge_actual_s"] <= crossed["t_merge_planned_s"] + 1e-6).all()
+    # controlled vehicles: the barrier's distance to the vehicle ahead (humans included) held
+    ctl = v[(v["driver"] == "automated") & v["min_center_distance_m"].notna()]
+    d0 = sc.barriers.min_gap_m + sc.vehicle.params().length
+    assert len(ctl) > 10 and (ctl["min_center_distance_m"] >= d0 - 0.05).all()
+    assert set(ctl["profile"]) >= {"from_rest"}  # some queued behind a human and started from the line
+
+
+def test_mixed_run_writes_the_human_bodies(mixed_run):
+    res, _ = mixed_run
+    doc = json.loads((res.run_dir / "movements.json").read_text())
+    assert doc["conflict_areas_human"]
+    assert all(a["movement"] in doc["movements"] for a in doc["conflict_areas"])
