@@ -43,7 +43,7 @@ MIN_CONTROL_ZONE_M = 20.0  # shortest control zone a route may leave after a cut
 STEADY_AFTER_S = 3.0  # DESIGN.md: steady-state tracking error counts after 3 s under control
 PATH_SPACING_M = 0.25  # sampling of the smoothed lane paths [m]
 LEADER_LOOKAHEAD_M = 200.0  # how far along its path a vehicle looks for its leader [m]
-STOP_BEFORE_M = 0.5  # a human driver stops with its front bumper this far before the merging-zone entry [m]
+STOP_BEFORE_M = 0.5  # a vehicle that must stand before it crosses stops this far short of its limit (_stop_lines) [m]
 # slack of a reserved start from rest of a controlled vehicle (its tracking error, in time) [s]
 FROM_REST_SLACK_S = 0.3
 HUMAN_BODY = "~human"  # suffix of a movement's name for a human driver's body on it (conflict areas)
@@ -1085,13 +1085,18 @@ class Engine:
             return True
         if self._blocked_ahead(vid):
             return True
-        k = self.snap.row.get(vid)
-        lane, pos = self.stop_line[rec.movement, rec.driver]
-        if (k is not None and self.snap.lane[k] == lane and self.snap.lane_pos[k] >= pos - 1.0
-                and self.snap.speed[k] < 0.1 and self.sumo.is_stopped(vid)):
+        if self._standing_at_stop(vid):
             self._reserve_from_rest(vid)
             return True
         return False
+
+    def _standing_at_stop(self, vid: str) -> bool:
+        """Whether a vehicle stands at the stop :meth:`_stop_lines` gives it (and SUMO says so)."""
+        rec = self.records[vid]
+        k = self.snap.row.get(vid)
+        lane, pos = self.stop_line[rec.movement, rec.driver]
+        return (k is not None and self.snap.lane[k] == lane and self.snap.lane_pos[k] >= pos - 1.0
+                and self.snap.speed[k] < 0.1 and self.sumo.is_stopped(vid))
 
     def _reserve_from_rest(self, vid: str) -> None:
         """Reserve the start of a controlled vehicle standing at the stop line: from rest at the
@@ -1100,11 +1105,8 @@ class Engine:
         with ``FROM_REST_SLACK_S`` each side."""
         rec = self.records[vid]
         mv = self.paths[rec.movement]
-        k = self.snap.row[vid]
-        s_cg = mv.s_of(self.snap.lane[k], float(self.snap.lane_pos[k])) - self.params.cg_to_front
         a, v_c = self.sc.planning.u_max_mps2, min(mv.v_limit, self.sc.planning.v_max_mps)
-        bounds = CrossingBounds(a, a, v_c, v_c, FROM_REST_SLACK_S)
-        self._reserve(vid, bounds, s_cg)
+        self._reserve(vid, CrossingBounds(a, a, v_c, v_c, FROM_REST_SLACK_S))
         rec.status = "starting"
         rec.profile_kind = "from_rest"
         self.unreserved[rec.approach].remove(vid)
@@ -1138,21 +1140,15 @@ class Engine:
         SUMO-driven vehicle)."""
         if not self.humans:
             return
-        tab = self.snap
         keep = []
         for vid in self.humans:
             rec = self.records[vid]
-            k = tab.row.get(vid)
-            if k is None:  # left the network (not expected before its crossing)
+            if vid not in self.snap.row:  # left the network (not expected before its crossing)
                 if vid in self.unreserved.get(rec.approach, ()):
                     self.unreserved[rec.approach].remove(vid)
                 continue
-            if rec.status == "human":
-                lane, pos = self.stop_line[rec.movement, rec.driver]
-                if (tab.lane[k] == lane and tab.lane_pos[k] >= pos - 1.0 and tab.speed[k] < 0.1
-                        and self.sumo.is_stopped(vid)):
-                    mv = self.paths[rec.movement]
-                    self._reserve_human(vid, mv.s_of(lane, float(tab.lane_pos[k])) - self.params.cg_to_front)
+            if rec.status == "human" and self._standing_at_stop(vid):
+                self._reserve_human(vid)
             if rec.status == "reserved" and self.t >= rec.t_release - 1e-9:
                 self.sumo.resume(vid)
                 rec.status = "crossing"
@@ -1161,9 +1157,9 @@ class Engine:
             keep.append(vid)
         self.humans = keep
 
-    def _reserve_human(self, vid: str, s_cg: float) -> None:
-        """Reserve the crossing of a human driver standing with its centre of gravity at ``s_cg``
-        [m] on its path (:meth:`Coordinator.reserve_crossing`): its occupancy of each conflict area
+    def _reserve_human(self, vid: str) -> None:
+        """Reserve the crossing of a human driver standing at its stop
+        (:meth:`Coordinator.reserve_crossing`): its occupancy of each conflict area
         bounded by :class:`~nrtraffic.planning.crossing.CrossingBounds` from the ``[human]``
         section, its drawn speed factor and its path's speed limit."""
         rec = self.records[vid]
@@ -1173,18 +1169,20 @@ class Engine:
         bounds = CrossingBounds(a_lo=(1.0 - h.sigma) * h.accel_mps2, a_hi=h.accel_mps2,
                                 v_lo=min(mv.v_limit, v_max) * min(1.0, factor), v_hi=v_max,
                                 step_s=self.sc.sumo.step_length_s)
-        self._reserve(vid, bounds, s_cg)
+        self._reserve(vid, bounds)
         rec.status = "reserved"
         rec.profile_kind = "human"
         self.unreserved[rec.approach].remove(vid)
         self.sumo.colour(vid, "human_reserved")
 
-    def _reserve(self, vid: str, bounds: CrossingBounds, s_cg: float):
-        """Reserve the crossing from rest of a vehicle standing with its centre of gravity at
-        ``s_cg`` [m] on its path, within ``bounds`` (:meth:`Coordinator.reserve_crossing`); its
-        record takes the start, the planned merging-zone entry (latest) and its predecessor."""
+    def _reserve(self, vid: str, bounds: CrossingBounds):
+        """Reserve the crossing from rest of a vehicle standing where SUMO has it now, within
+        ``bounds`` (:meth:`Coordinator.reserve_crossing`); its record takes the start, the planned
+        merging-zone entry (latest) and its predecessor."""
         rec = self.records[vid]
         mv = self.paths[rec.movement]
+        k = self.snap.row[vid]
+        s_cg = mv.s_of(self.snap.lane[k], float(self.snap.lane_pos[k])) - self.params.cg_to_front
         key = rec.movement + (HUMAN_BODY if rec.driver == "human" else "")  # its body's conflict areas
         areas = {other: (mv.s_merge + lo - s_cg, mv.s_merge + hi - s_cg)
                  for (a, other), (lo, hi) in self.conflict_areas.items() if a == key}

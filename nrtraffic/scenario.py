@@ -271,22 +271,24 @@ class HumanDriver:
     """``[human]``: the vehicles that ``demand.controlled_share`` leaves to SUMO (README, Mixed
     traffic). SUMO's car-following model drives them, in the controlled vehicles' dimensions.
 
-    Their rule at a coordinated junction: a human driver stops with its front bumper at the
-    merging-zone entry (the stop line of a signal-free junction), and when it stands there the
-    coordinator reserves its crossing from a standing start, first come first served with the
-    controlled vehicles' reservations: it may set off at the earliest time at which its occupancy
-    of every conflict area, bounded from both sides, overlaps no other reservation. The bounds:
-    it accelerates at least at ``(1 - sigma) * accel_mps2`` (Krauss's dawdling takes at most
-    ``sigma * accel`` off) up to the slowest speed limit on its path, sets off at most one step
-    after its release, and at most at ``accel_mps2`` up to the planning's ``v_max_mps``. A
-    controlled vehicle behind a human on its lane is scheduled once the human's crossing is
-    reserved, behind it. In a baseline run (SUMO's own junction control) the same drivers obey
-    that control.
+    Their rule at a coordinated junction (README, Mixed traffic): a human driver stops at SUMO's
+    stop line (or short of the first conflict area its body would touch there), and when it stands
+    there the coordinator reserves its crossing from a standing start, first come first served
+    with the controlled vehicles' reservations and after the vehicle ahead of it on its lane: it
+    may set off at the earliest time at which its occupancy of every conflict area, bounded from
+    both sides, overlaps no other reservation. The bounds: it accelerates at least at ``(1 -
+    sigma) * accel_mps2`` (Krauss's dawdling takes at most ``sigma * accel`` off) up to the slowest
+    speed limit on its path times its speed factor, and sets off at most one step after its
+    release; at most at ``accel_mps2`` up to the planning's ``v_max_mps``. A controlled vehicle that
+    reaches the control zone behind a human whose crossing is not reserved yet waits for it: it
+    is scheduled on the move once nothing unreserved is ahead of it, or, standing at the
+    merging-zone entry by then, starts from rest on a reserved plan. In a baseline run (SUMO's own
+    junction control) the same drivers obey that control.
     """
 
     car_follow_model: str = "Krauss"  # SUMO's car-following model (the reservation's bounds are Krauss's)
-    accel_mps2: float = 2.6  # SUMO's defaults for a passenger car
-    decel_mps2: float = 4.5
+    accel_mps2: float = 2.6  # its acceleration (SUMO's default for a passenger car) [m/s^2]
+    decel_mps2: float = 4.5  # its comfortable deceleration [m/s^2]
     sigma: float = 0.5  # driver imperfection (random deceleration up to sigma * accel)
     tau_s: float = 1.0  # desired time headway [s]
     min_gap_m: float = 2.5  # bumper to bumper at a standstill [m]
