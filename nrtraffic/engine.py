@@ -681,7 +681,8 @@ class Engine:
         self.batch_ids: list[str] = []
         self.uncontrolled: list[str] = []
         self.released: list[str] = []  # handed back to SUMO, still read every step (_forget_far)
-        self.humans: list[str] = []  # human drivers before they set off across the junction
+        self.humans: list[str] = []  # human drivers until they leave the merging zone
+        self.reservations: dict = {}  # human driver -> (its reserved crossing, the bounds it was reserved with)
         self.starting: list[str] = []  # controlled vehicles standing at the stop line, their start reserved
         self.unreserved: dict[str, list[str]] = {}  # approach -> its human drivers not yet reserved, in order
         self._alloc(0)
@@ -1153,9 +1154,31 @@ class Engine:
                 self.sumo.resume(vid)
                 rec.status = "crossing"
                 self.sumo.colour(vid, "released")
-                continue
+            if rec.status == "crossing":
+                if not math.isnan(rec.t_exit):  # past the merging zone: its reservation is spent
+                    self.reservations.pop(vid, None)
+                    continue
+                self._refresh(vid)
             keep.append(vid)
         self.humans = keep
+
+    def _refresh(self, vid: str) -> None:
+        """Shrink the reservation of a human driver on its way across to what its bounds allow from
+        where it is and how fast it goes now: its latest exit of each conflict area comes no later
+        than reserved, and sooner when it drives faster than the slowest the bounds allowed, which
+        frees the area for the requests that come after. (Entries only move later.)"""
+        rec = self.records[vid]
+        asg, bounds = self.reservations[vid]
+        mv = self.paths[rec.movement]
+        k = self.snap.row[vid]
+        if self.snap.lane[k] not in mv.lane_offset:
+            return
+        s_cg = mv.s_of(self.snap.lane[k], float(self.snap.lane_pos[k])) - self.params.cg_to_front
+        v = float(self.snap.speed[k])
+        for other, (lo, hi) in self._areas_of(rec).items():
+            t_in, t_out = bounds.window(mv.s_merge + lo - s_cg, mv.s_merge + hi - s_cg, v)
+            old_in, old_out = asg.occupancy[other]
+            asg.occupancy[other] = (max(old_in, self.t + t_in), min(old_out, self.t + t_out))
 
     def _reserve_human(self, vid: str) -> None:
         """Reserve the crossing of a human driver standing at its stop
@@ -1183,15 +1206,28 @@ class Engine:
         mv = self.paths[rec.movement]
         k = self.snap.row[vid]
         s_cg = mv.s_of(self.snap.lane[k], float(self.snap.lane_pos[k])) - self.params.cg_to_front
-        key = rec.movement + (HUMAN_BODY if rec.driver == "human" else "")  # its body's conflict areas
         areas = {other: (mv.s_merge + lo - s_cg, mv.s_merge + hi - s_cg)
-                 for (a, other), (lo, hi) in self.conflict_areas.items() if a == key}
+                 for other, (lo, hi) in self._areas_of(rec).items()}
         offsets, merge_w, exit_w, v_exit = human_crossing(bounds, areas, mv.s_merge - s_cg, mv.s_exit - s_cg)
-        asg = self.coord.reserve_crossing(vid, rec.approach, key, self.t, offsets, merge_w, exit_w, v_exit)
+        asg = self.coord.reserve_crossing(vid, rec.approach, self._body(rec), self.t, offsets, merge_w, exit_w,
+                                          v_exit)
         rec.t_release = asg.t_release
         rec.t_merge_planned, rec.v_merge_planned = asg.t_merge, asg.profile.v_m
         rec.predecessor, rec.relation, rec.binding = asg.predecessor, asg.relation, asg.binding
+        if rec.driver == "human":
+            self.reservations[vid] = (asg, bounds)  # refreshed as it crosses (_refresh)
         return asg
+
+    @staticmethod
+    def _body(rec: VehicleRecord) -> str:
+        """The name its body's conflict areas go by: its movement's, or ``<movement>~human``."""
+        return rec.movement + (HUMAN_BODY if rec.driver == "human" else "")
+
+    def _areas_of(self, rec: VehicleRecord) -> dict[str, tuple[float, float]]:
+        """The conflict areas of a vehicle's body on its movement: other movement -> (from, to) [m
+        from its merging-zone entry]."""
+        key = self._body(rec)
+        return {other: area for (a, other), area in self.conflict_areas.items() if a == key}
 
     def _sumo_gaps(self) -> None:
         """The bumper gap [m] of every SUMO-driven vehicle between its control-zone entry and its

@@ -12,7 +12,7 @@ import pytest
 from nrtraffic import scenario
 from nrtraffic.engine import Engine
 from nrtraffic.planning.coordinator import Coordinator, CoordinatorSettings
-from nrtraffic.planning.crossing import CrossingBounds, human_crossing, speed_from_rest, time_from_rest
+from nrtraffic.planning.crossing import CrossingBounds, human_crossing, speed_from_rest, travel_time
 from nrtraffic.planning.profiles import PlanBounds, from_rest
 from nrtraffic.scenario import ScenarioError
 from nrtraffic.sumo.adapter import SumoSession, VehicleType, write_routes
@@ -44,19 +44,19 @@ def test_shares_are_drawn_by_seed_and_nested():
     assert abs(k - 0.25 * n) < 4 * math.sqrt(n * 0.25 * 0.75)
 
 
-def test_time_from_rest_closed_form_and_derivative():
+def test_travel_time_closed_form_and_derivative():
     a, v_cap = 2.0, 10.0
-    assert time_from_rest(9.0, a, v_cap) == pytest.approx(3.0)  # 1/2 a t^2 = 9
+    assert travel_time(9.0, a, v_cap) == pytest.approx(3.0)  # 1/2 a t^2 = 9
     # past the cap: 25 m to reach it in 5 s, then cruise
-    assert time_from_rest(45.0, a, v_cap) == pytest.approx(5.0 + 20.0 / 10.0)
+    assert travel_time(45.0, a, v_cap) == pytest.approx(5.0 + 20.0 / 10.0)
     for d in (1.0, 10.0, 24.9, 25.1, 60.0):  # dT/dd is 1 / speed there
         h = 1e-6
-        dT = (time_from_rest(d + h, a, v_cap) - time_from_rest(d - h, a, v_cap)) / (2 * h)
+        dT = (travel_time(d + h, a, v_cap) - travel_time(d - h, a, v_cap)) / (2 * h)
         assert dT == pytest.approx(1.0 / speed_from_rest(d, a, v_cap), rel=1e-5)
     prof = from_rest(2.0, 30.0, a, v_cap)  # the controlled vehicle's plan from the stop line
-    p, v, u = prof.evaluate(2.0 + time_from_rest(30.0, a, v_cap))
+    p, v, u = prof.evaluate(2.0 + travel_time(30.0, a, v_cap))
     assert float(p) == pytest.approx(30.0) and float(v) == pytest.approx(10.0)
-    assert prof.t_m == pytest.approx(2.0 + time_from_rest(30.0, a, v_cap))
+    assert prof.t_m == pytest.approx(2.0 + travel_time(30.0, a, v_cap))
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3])

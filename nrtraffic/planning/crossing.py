@@ -1,11 +1,14 @@
 """The crossing of a vehicle the coordinator does not steer: a human driver that stands at the
-merging-zone entry and sets off when its reservation starts (``demand.controlled_share``; README,
-Mixed traffic).
+stop line and sets off when its reservation starts (``demand.controlled_share``; README, Mixed
+traffic).
 
 From rest, accelerating at ``a`` [m/s^2] up to ``v_cap`` [m/s], a vehicle covers ``d`` [m] in::
 
     T(d) = sqrt(2 d / a)                                  for d <= v_cap^2 / (2 a)
          = v_cap / a + (d - v_cap^2 / (2 a)) / v_cap      beyond
+
+and from speed ``v0 < v_cap`` in ``(sqrt(v0^2 + 2 a d) - v0) / a`` while it accelerates; from
+``v0 >= v_cap``, no later than ``d / v_cap`` (it may only slow down to ``v_cap``).
 
 Its occupancy of a stretch ``[d_in, d_out]`` of its path (distances of its centre of gravity from
 where it stands) is bounded by the earliest entry ``T_hi(d_in) - h`` and the latest exit
@@ -21,14 +24,17 @@ import math
 from dataclasses import dataclass
 
 
-def time_from_rest(d: float, a: float, v_cap: float) -> float:
-    """Time [s] to cover ``d`` [m] from rest at acceleration ``a`` [m/s^2] up to ``v_cap`` [m/s]."""
+def travel_time(d: float, a: float, v_cap: float, v0: float = 0.0) -> float:
+    """Time [s] to cover ``d`` [m] from speed ``v0`` (default rest) at acceleration ``a`` [m/s^2]
+    up to ``v_cap`` [m/s] (module docstring)."""
     if d <= 0.0:
         return 0.0
-    d_acc = v_cap * v_cap / (2.0 * a)
+    if v0 >= v_cap:
+        return d / v_cap
+    d_acc = (v_cap * v_cap - v0 * v0) / (2.0 * a)
     if d <= d_acc:
-        return math.sqrt(2.0 * d / a)
-    return v_cap / a + (d - d_acc) / v_cap
+        return (math.sqrt(v0 * v0 + 2.0 * a * d) - v0) / a
+    return (v_cap - v0) / a + (d - d_acc) / v_cap
 
 
 def speed_from_rest(d: float, a: float, v_cap: float) -> float:
@@ -51,11 +57,12 @@ class CrossingBounds:
         if not (0 < self.a_lo <= self.a_hi and 0 < self.v_lo <= self.v_hi and self.step_s >= 0):
             raise ValueError(f"crossing bounds need 0 < a_lo <= a_hi, 0 < v_lo <= v_hi, step >= 0: {self}")
 
-    def window(self, d_in: float, d_out: float) -> tuple[float, float]:
-        """Earliest entry and latest exit [s after the release] of the stretch ``[d_in, d_out]``
-        [m ahead of the centre of gravity at rest]; never before the release."""
-        t_in = max(time_from_rest(d_in, self.a_hi, self.v_hi) - self.step_s, 0.0)
-        return t_in, time_from_rest(d_out, self.a_lo, self.v_lo) + self.step_s
+    def window(self, d_in: float, d_out: float, v0: float = 0.0) -> tuple[float, float]:
+        """Earliest entry and latest exit [s from now] of the stretch ``[d_in, d_out]`` [m ahead
+        of the centre of gravity], for a vehicle at speed ``v0`` [m/s] (default: at rest, about to
+        be released); never before now."""
+        t_in = max(travel_time(d_in, self.a_hi, self.v_hi, v0) - self.step_s, 0.0)
+        return t_in, travel_time(d_out, self.a_lo, self.v_lo, v0) + self.step_s
 
 
 def human_crossing(bounds: CrossingBounds, areas: dict, d_merge: float, d_exit: float):

@@ -269,9 +269,9 @@ def from_rest(t0: float, D: float, a: float, v_cap: float) -> Profile:
     it is not energy-optimal, and its speed starts below ``v_min``."""
     if not (a > 0.0 and v_cap > 0.0 and D >= 0.0):
         raise InfeasibleProfile(f"a start from rest needs a > 0, v_cap > 0, D >= 0 (got {a}, {v_cap}, {D})")
-    from nrtraffic.planning.crossing import time_from_rest
+    from nrtraffic.planning.crossing import travel_time
 
-    return _build(t0, time_from_rest(D, a, v_cap), D, 0.0, "from_rest", [(v_cap / a, a, 0.0)])
+    return _build(t0, travel_time(D, a, v_cap), D, 0.0, "from_rest", [(v_cap / a, a, 0.0)])
 
 
 def _cruise_arcs(v0: float, vm: float, D: float, T: float, vb: float):
