@@ -53,6 +53,10 @@ def test_travel_time_closed_form_and_derivative():
         h = 1e-6
         dT = (travel_time(d + h, a, v_cap) - travel_time(d - h, a, v_cap)) / (2 * h)
         assert dT == pytest.approx(1.0 / speed_from_rest(d, a, v_cap), rel=1e-5)
+    # on the move (a reservation refreshed as the driver crosses): 4 m/s, 10 m -> 4 t + t^2 = 10
+    assert travel_time(10.0, a, v_cap, v0=4.0) == pytest.approx(-2.0 + math.sqrt(14.0))
+    assert travel_time(30.0, a, v_cap, v0=12.0) == pytest.approx(3.0)  # above the cap: no later than at it
+    assert travel_time(10.0, a, v_cap, v0=4.0) < travel_time(10.0, a, v_cap)
     prof = from_rest(2.0, 30.0, a, v_cap)  # the controlled vehicle's plan from the stop line
     p, v, u = prof.evaluate(2.0 + travel_time(30.0, a, v_cap))
     assert float(p) == pytest.approx(30.0) and float(v) == pytest.approx(10.0)
