@@ -385,8 +385,9 @@ class Coordinator:
     def reserve_crossing(self, vehicle_id: str, lane: str, movement: str, t0: float, offsets: dict,
                          merge_window: tuple[float, float], exit_window: tuple[float, float],
                          v_exit_min: float) -> Assignment:
-        """Reserve the crossing of a vehicle the coordinator does not steer (a human driver standing
-        at the merging-zone entry, ``demand.controlled_share``), first come first served: the
+        """Reserve the crossing of a vehicle that starts from rest (a human driver standing at the
+        stop line, ``demand.controlled_share``, or a controlled car queued behind one), first come
+        first served: the
         earliest start ``t >= t0`` at which its occupancy of every conflict area on its path,
         ``offsets[other] = (earliest entry, latest exit)`` [s after the start] of the area shared
         with movement ``other``, widened by the margin, overlaps no reservation; every later
