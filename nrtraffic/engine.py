@@ -532,8 +532,8 @@ class Engine:
         movement ``m``, at the two ends of its range: the kinematic one (a slow car: its rear axle
         moves along the body, so the body turns less than the path, by ``asin(l_r kappa)``), and
         the one the kernel gives crossing at the movement's crossing speed (its tyres slip
-        besides). On a tight turn both differ from the path's heading by 0.2-0.4 rad, which turns
-        the body's corners out by most of a metre."""
+        besides). On cross4's turns both differ from the path's heading by up to 0.3 rad (left)
+        and 0.46 rad (right), which turns the body's corners out by most of a metre."""
         p = self.params
         h = np.unwrap(m.path.heading_at(m.path.s))
         n = max(1, int(round(1.0 / PATH_SPACING_M)))  # curvature over 2 m
@@ -947,9 +947,9 @@ class Engine:
                     self.batch_closes = self.t + self.sc.coordinator.batch_window_s
                 self.pending.append(vid)
                 self.sumo.colour(vid, "pending")
-        for vid in list(self.pending):  # behind a human: each step, until its start is reserved
-            if self._hindered(vid) and self.records[vid].status == "starting":
-                self.pending.remove(vid)
+        # behind a human: checked each step, until its start is reserved (then it leaves the batch)
+        waiting = {vid for vid in self.pending if self._hindered(vid)}
+        self.pending = [v for v in self.pending if self.records[v].status != "starting"]
         for vid in self.pending:
             if self.records[vid].status == "held":
                 self.records[vid].t_held += dt
@@ -958,7 +958,7 @@ class Engine:
             return
         got = {}
         for vid in self.pending:
-            if self._hindered(vid):  # waits for a human ahead, or starts from the stop line
+            if vid in waiting:  # waits for a human ahead, or for its stop at the stop line
                 continue
             g = self._request(vid)
             if g is not None and g[0].D > 0.5:
@@ -972,8 +972,7 @@ class Engine:
                 self._admit(got[req.vehicle_id], a)
         for vid in held:
             self._hold(vid)
-        self.pending = [v for v in self.pending
-                        if (v in held or v not in got) and self.records[v].status != "starting"]
+        self.pending = [v for v in self.pending if v in held or v not in got]
         self.batch_closes = self.t + self.sc.coordinator.batch_window_s if self.pending else math.inf
 
     def _account_waiting(self, vids: list[str], dt: float) -> None:
@@ -1170,11 +1169,10 @@ class Engine:
         rec = self.records[vid]
         asg, bounds = self.reservations[vid]
         mv = self.paths[rec.movement]
-        k = self.snap.row[vid]
-        if self.snap.lane[k] not in mv.lane_offset:
+        s_cg = self._cg_on_path(vid)
+        if s_cg is None:
             return
-        s_cg = mv.s_of(self.snap.lane[k], float(self.snap.lane_pos[k])) - self.params.cg_to_front
-        v = float(self.snap.speed[k])
+        v = float(self.snap.speed[self.snap.row[vid]])
         for other, (lo, hi) in self._areas_of(rec).items():
             t_in, t_out = bounds.window(mv.s_merge + lo - s_cg, mv.s_merge + hi - s_cg, v)
             old_in, old_out = asg.occupancy[other]
@@ -1204,8 +1202,7 @@ class Engine:
         merging-zone entry (latest) and its predecessor."""
         rec = self.records[vid]
         mv = self.paths[rec.movement]
-        k = self.snap.row[vid]
-        s_cg = mv.s_of(self.snap.lane[k], float(self.snap.lane_pos[k])) - self.params.cg_to_front
+        s_cg = self._cg_on_path(vid)
         areas = {other: (mv.s_merge + lo - s_cg, mv.s_merge + hi - s_cg)
                  for other, (lo, hi) in self._areas_of(rec).items()}
         offsets, merge_w, exit_w, v_exit = human_crossing(bounds, areas, mv.s_merge - s_cg, mv.s_exit - s_cg)
@@ -1217,6 +1214,15 @@ class Engine:
         if rec.driver == "human":
             self.reservations[vid] = (asg, bounds)  # refreshed as it crosses (_refresh)
         return asg
+
+    def _cg_on_path(self, vid: str) -> float | None:
+        """Where a SUMO-driven vehicle's centre of gravity is on its movement's path now [m] (None
+        off the path's lanes)."""
+        mv = self.paths[self.records[vid].movement]
+        k = self.snap.row[vid]
+        if self.snap.lane[k] not in mv.lane_offset:
+            return None
+        return mv.s_of(self.snap.lane[k], float(self.snap.lane_pos[k])) - self.params.cg_to_front
 
     @staticmethod
     def _body(rec: VehicleRecord) -> str:

@@ -152,7 +152,6 @@ class Crossing:
     at the merging-zone exit [m/s]."""
 
     v_m: float
-    kind: str = "human"
 
 
 @dataclass(frozen=True)
