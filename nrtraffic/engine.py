@@ -87,8 +87,10 @@ class RunFailed(RuntimeError):
 class Movement:
     """A movement's lane path and its zone boundaries (arc length of the centre of gravity) [m].
 
-    ``approach`` is the lane key of the coordinator (vehicles entering on the same lane), ``turn``
-    the movement (left, straight, right; ``through`` on a plain road).
+    A movement is one lane-to-lane connection: ``approach`` is the incoming road, ``turn`` the
+    turning movement (left, straight, right; ``through`` on a plain road), ``route_name`` the
+    turning movement it belongs to (the demand's unit: ``<approach>.<turn>``, several lanes may
+    serve it), and ``lanes[0]`` its entry lane, the coordinator's lane key.
     """
 
     name: str
@@ -102,6 +104,7 @@ class Movement:
     s_merge: float
     s_exit: float
     v_limit: float = math.inf  # lowest lane speed limit along the path (SUMO's turn speeds) [m/s]
+    route_name: str = ""
 
     def s_of(self, lane: str, pos: float) -> float:
         off, scale = self.lane_offset[lane]
@@ -113,7 +116,9 @@ class VehicleRecord:
     vehicle_id: str
     approach: str
     t_depart: float
-    movement: str = ""
+    movement: str = ""  # its lane-level movement (a key of Engine.paths), from the lane SUMO gives it
+    route: str = ""  # its turning movement (the demand's route name)
+    lane: str = ""  # its entry lane: the coordinator's lane key
     v_free: float = math.nan  # its free-flow speed: the speed it was sent in with [m/s]
     controlled: bool = True
     driver: str = "automated"  # or "human" (demand.controlled_share): what kind of vehicle it is
@@ -234,17 +239,23 @@ class Engine:
 
     # ------------------------------------------------------------------ set-up
     def _movement_table(self) -> None:
-        """Movements known before SUMO starts: name -> (approach lane key, turn, route)."""
+        """Movements known before SUMO starts. ``movement_table``: turning movement (the demand's
+        route) -> (approach, turn, route edges); ``lane_movements``: turning movement -> its
+        lane-level movements ``(entry lane, name, entry lane index, exit lane index)``, one per
+        lane that serves it (a one-lane approach: one, of the same name)."""
         sc = self.sc
         self.movement_table: dict[str, tuple[str, str, tuple[str, ...]]] = {}
+        self.lane_movements: dict[str, list[tuple[str, str, int, int | None]]] = {}
         if sc.junction.id:
             moves, self.junction_xy = junction_movements(self.network_path, sc.junction.id)
             for m in moves:
-                self.movement_table[m.name] = (m.in_edge, m.turn, (m.in_edge, m.out_edge))
+                self.movement_table[m.route] = (m.in_edge, m.turn, (m.in_edge, m.out_edge))
+                self.lane_movements.setdefault(m.route, []).append((m.lane, m.name, m.in_lane, m.out_lane))
         else:
             self.junction_xy = None
             for a in sc.approaches:
                 self.movement_table[a.name] = (a.name, "through", a.route)
+                self.lane_movements[a.name] = [(f"{a.route[0]}_0", a.name, 0, None)]
 
     def _demand(self) -> list[tuple]:
         """Departures ``(vehicle_id, movement, depart_s, depart_speed, depart_pos, type)`` from the
@@ -413,8 +424,10 @@ class Engine:
         out = {}
         z = self.sc.zones
         merge_at = {a.name: a for a in self.sc.approaches}
-        for name, (appr, turn, route) in self.movement_table.items():
-            lanes = sumo.route_lanes(route)
+        moves = [(rname, *lm) for rname in self.movement_table for lm in self.lane_movements[rname]]
+        for rname, _lane, name, lane_in, lane_out in moves:
+            appr, turn, route = self.movement_table[rname]
+            lanes = sumo.route_lanes(route, lane_in, lane_out)
             pts = [pt for _, shape, _ in lanes for pt in shape]
             path = LanePath.from_points(pts, smooth_spacing=PATH_SPACING_M)
             # arc length of each lane's start on the (smoothed) path; lane positions scale linearly
@@ -429,7 +442,7 @@ class Engine:
                     raise ValueError(f"movement {name}: its path does not enter the merging zone from outside")
                 s_m, s_x = float(path.s[inside[0]]), float(path.s[min(inside[-1], len(path.s) - 1)])
             else:
-                a = merge_at[name]
+                a = merge_at[rname]
                 lane_m = f"{a.merge_entry_edge}_0"
                 s_m = offsets[lane_m][0] + a.merge_entry_pos_m * offsets[lane_m][1]
                 s_x = s_m + z.merging_zone_m
@@ -448,7 +461,7 @@ class Engine:
             v_lim = min(sumo.lane_speed(ln) for ln, _, _ in lanes) if self.junction_xy is not None else math.inf
             v_lim = min(v_lim, _curve_speed(path, s_m, s_x, self.sc.planning.max_lateral_accel_mps2))
             out[name] = Movement(name, appr, turn, route, path, [ln for ln, _, _ in lanes], offsets, s_c, s_m, s_x,
-                                 v_lim)
+                                 v_lim, rname)
         if self.zone_cuts:
             print(f"{self.sc.general.name}: zones.control_zone_m = {z.control_zone_m:g} m reaches back past where "
                   f"routes start; cut there: " + ", ".join(f"{k} {v:.0f} m" for k, v in self.zone_cuts.items()),
@@ -497,7 +510,7 @@ class Engine:
 
         doc = {
             "movements": {
-                m.name: {"approach": m.approach, "turn": m.turn, "route": list(m.route),
+                m.name: {"approach": m.approach, "turn": m.turn, "route": list(m.route), "lanes": m.lanes,
                          "control_zone_start_m": m.s_control, "merge_entry_m": m.s_merge, "merge_exit_m": m.s_exit,
                          "zone_length_m": m.s_exit - m.s_merge,
                          "v_limit_mps": None if not math.isfinite(m.v_limit) else m.v_limit,
@@ -733,7 +746,7 @@ class Engine:
                             self.sumo.stop_at(vid, *self.stop_line[rec.movement, rec.driver])
                             self.sumo.colour(vid, "human")
                             self.humans.append(vid)
-                            self.unreserved.setdefault(rec.approach, []).append(vid)
+                            self.unreserved.setdefault(rec.lane, []).append(vid)
                 self.snap = self.sumo.snapshot()
                 self._track_uncontrolled(dt)
                 self._humans_step()
@@ -745,20 +758,20 @@ class Engine:
                     blocked: set[str] = set()  # lanes whose first waiting vehicle could not be admitted
                     for vid in list(approaching):
                         rec = self.records[vid]
-                        if rec.approach in blocked:
+                        if rec.lane in blocked:
                             continue
                         if ((rec.hindered or self._blocked_ahead(vid)) and self._request(vid, entry_only=True)
                                 and self._hindered(vid)):  # waits for a human ahead, or starts from the stop line
                             if rec.status == "starting":
                                 approaching.remove(vid)
                             else:
-                                blocked.add(rec.approach)
+                                blocked.add(rec.lane)
                             continue
                         state = self._try_admit(vid)
                         if state == "admitted":
                             approaching.remove(vid)
                         elif state == "held":
-                            blocked.add(rec.approach)
+                            blocked.add(rec.lane)
                             rec.t_held += dt
                     self._account_waiting([v for v in approaching if self.records[v].status == "held"]
                                           + self.starting, dt)
@@ -873,11 +886,20 @@ class Engine:
         """The record of a vehicle SUMO has just inserted (None for one not of the demand)."""
         if vid not in self._scheduled:
             return None
-        mv, t, speed = self._scheduled.pop(vid)
+        route, t, speed = self._scheduled.pop(vid)
         lv = self._listed.get(vid)
         human = vid in self._humans
+        lanes = self.lane_movements[route]
+        if len(lanes) > 1:
+            # SUMO inserted it on the least occupied lane its route can take (departLane="best"); it
+            # keeps that lane, which decides its lane-level movement
+            here = self.sumo.lane_position(vid)[0]
+            self.sumo.keep_lane(vid)
+            lane, mv = next(((ln, name) for ln, name, _, _ in lanes if ln == here), lanes[0][:2])
+        else:
+            lane, mv = lanes[0][:2]
         rec = self.records[vid] = VehicleRecord(
-            vid, self.movement_table[mv][0], t, movement=mv, v_free=speed,
+            vid, self.movement_table[route][0], t, movement=mv, route=route, lane=lane, v_free=speed,
             controlled=(lv.controlled if lv else True) and self.control and not human,
             driver="human" if human else "automated",
             heading_offset=lv.entry_heading_offset_rad if lv else 0.0,
@@ -913,7 +935,7 @@ class Engine:
         v_lim = mv.v_limit
         if rec.hindered:  # slowed behind a human: cross no faster than half the bound's acceleration reaches
             v_lim = min(v_lim, math.sqrt(v * v + self.sc.planning.u_max_mps2 * max(D, 0.0)))
-        req = Request(vid, rec.approach, self.t, v, D, rec.movement, mv.s_exit - mv.s_merge, v_lim, rec.hindered)
+        req = Request(vid, rec.lane, self.t, v, D, rec.movement, mv.s_exit - mv.s_merge, v_lim, rec.hindered)
         return req, x0, s_proj, lat0
 
     def _try_admit(self, vid: str) -> str:
@@ -1005,7 +1027,7 @@ class Engine:
         mv = self.paths[rec.movement]
         if rec.hindered and rec.status != "starting":  # scheduled on the move after all: no stop
             self.sumo.cancel_stop(vid)
-            self.unreserved[rec.approach].remove(vid)
+            self.unreserved[rec.lane].remove(vid)
         rec.status = "controlled"
         self.sumo.take_over(vid)
         self.sumo.colour(vid, "controlled")
@@ -1061,7 +1083,7 @@ class Engine:
         """Whether a vehicle whose crossing is not reserved yet, a human driver or a controlled
         vehicle queued behind one, is ahead of ``vid`` on its lane (an approach is one lane, which
         keeps the order of departure)."""
-        q = self.unreserved.get(self.records[vid].approach)
+        q = self.unreserved.get(self.records[vid].lane)
         return bool(q) and q[0] != vid and self.records[q[0]].t_depart < self.records[vid].t_depart
 
     def _hindered(self, vid: str) -> bool:
@@ -1081,7 +1103,7 @@ class Engine:
             rec.hindered = True
             self.sumo.stop_at(vid, *self.stop_line[rec.movement, rec.driver])
             self.sumo.colour(vid, "pending")
-            bisect.insort(self.unreserved[rec.approach], vid, key=lambda v: self.records[v].t_depart)
+            bisect.insort(self.unreserved[rec.lane], vid, key=lambda v: self.records[v].t_depart)
             return True
         if self._blocked_ahead(vid):
             return True
@@ -1109,7 +1131,7 @@ class Engine:
         self._reserve(vid, CrossingBounds(a, a, v_c, v_c, FROM_REST_SLACK_S))
         rec.status = "starting"
         rec.profile_kind = "from_rest"
-        self.unreserved[rec.approach].remove(vid)
+        self.unreserved[rec.lane].remove(vid)
         self.starting.append(vid)
         self.sumo.colour(vid, "held")
 
@@ -1129,7 +1151,7 @@ class Engine:
             mv = self.paths[rec.movement]
             prof = from_rest(self.t, req.D, self.sc.planning.u_max_mps2, min(mv.v_limit, self.sc.planning.v_max_mps))
             self.sumo.resume(vid)
-            self._admit(got, Assignment(vid, rec.approach, self.t, prof.t_m, prof, rec.predecessor, rec.relation,
+            self._admit(got, Assignment(vid, rec.lane, self.t, prof.t_m, prof, rec.predecessor, rec.relation,
                                         rec.binding, rec.movement))
         self.starting = keep
 
@@ -1144,8 +1166,8 @@ class Engine:
         for vid in self.humans:
             rec = self.records[vid]
             if vid not in self.snap.row:  # left the network (not expected before its crossing)
-                if vid in self.unreserved.get(rec.approach, ()):
-                    self.unreserved[rec.approach].remove(vid)
+                if vid in self.unreserved.get(rec.lane, ()):
+                    self.unreserved[rec.lane].remove(vid)
                 continue
             if rec.status == "human" and self._standing_at_stop(vid):
                 self._reserve_human(vid)
@@ -1193,7 +1215,7 @@ class Engine:
         self._reserve(vid, bounds)
         rec.status = "reserved"
         rec.profile_kind = "human"
-        self.unreserved[rec.approach].remove(vid)
+        self.unreserved[rec.lane].remove(vid)
         self.sumo.colour(vid, "human_reserved")
 
     def _reserve(self, vid: str, bounds: CrossingBounds):
@@ -1206,7 +1228,7 @@ class Engine:
         areas = {other: (mv.s_merge + lo - s_cg, mv.s_merge + hi - s_cg)
                  for other, (lo, hi) in self._areas_of(rec).items()}
         offsets, merge_w, exit_w, v_exit = human_crossing(bounds, areas, mv.s_merge - s_cg, mv.s_exit - s_cg)
-        asg = self.coord.reserve_crossing(vid, rec.approach, self._body(rec), self.t, offsets, merge_w, exit_w,
+        asg = self.coord.reserve_crossing(vid, rec.lane, self._body(rec), self.t, offsets, merge_w, exit_w,
                                           v_exit)
         rec.t_release = asg.t_release
         rec.t_merge_planned, rec.v_merge_planned = asg.t_merge, asg.profile.v_m
@@ -1493,7 +1515,7 @@ class Engine:
 
             rows.append({
                 "vehicle_id": rec.vehicle_id, "approach": rec.approach, "driver": rec.driver,
-                "movement": ap.turn if ap is not None else "",
+                "movement": ap.turn if ap is not None else "", "lane": rec.lane,
                 "t_arrive_s": rec.t_enter if math.isnan(rec.t_arrive) else rec.t_arrive,
                 "depart_delay_s": rec.depart_delay,
                 "t_enter_s": rec.t_enter, "v_enter_mps": rec.v_enter, "t_merge_planned_s": rec.t_merge_planned,

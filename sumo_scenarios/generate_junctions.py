@@ -1,6 +1,7 @@
-"""Regenerate the plain XML and networks of the junction scenarios (cross4, tee3, cross4_curved).
+"""Regenerate the plain XML and networks of the junction scenarios (cross4, cross4_2lane, tee3, cross4_curved).
 
-Every arm is one lane each way, 520 m long, 50 km/h (13.89 m/s); the junction node "C" is at the
+Every arm is one lane each way (cross4_2lane: two lanes out, and in two lanes and a left-turn
+lane, with the lane use of ``net.con.xml``), 520 m long, 50 km/h (13.89 m/s); the junction node "C" is at the
 origin. cross4_curved bends its north arm on an arc of radius 600 m. The networks are built with
 junction type "priority" (the type nrtraffic runs on: the vehicles it controls pass the junction
 under moveToXY); the baselines rebuild them with SUMO's own junction control. Each folder also
@@ -33,7 +34,8 @@ def _arc_points(n=130):
             (th_max * k / n for k in range(n + 1))]
 
 
-def write(name: str, arms: dict[str, tuple[float, float]], shapes: dict[str, list] | None = None) -> None:
+def write(name: str, arms: dict[str, tuple[float, float]], shapes: dict[str, list] | None = None,
+          lanes_in: int = 1, lanes_out: int = 1, connections: str = "") -> None:
     d = HERE / name
     d.mkdir(exist_ok=True)
     shapes = shapes or {}
@@ -41,17 +43,20 @@ def write(name: str, arms: dict[str, tuple[float, float]], shapes: dict[str, lis
     edges = []
     for arm, (x, y) in arms.items():
         nodes.append(f'    <node id="{arm}" x="{x:.4f}" y="{y:.4f}" type="priority"/>')
-        common = f'numLanes="1" speed="{SPEED}"'
         shp_out = shp_in = ""
         if arm in shapes:
             pts = shapes[arm]
             shp_out = ' shape="' + " ".join(f"{px:.4f},{py:.4f}" for px, py in pts) + '"'
             shp_in = ' shape="' + " ".join(f"{px:.4f},{py:.4f}" for px, py in reversed(pts)) + '"'
-        edges.append(f'    <edge id="{arm}_in" from="{arm}" to="C" {common}{shp_in}/>')
-        edges.append(f'    <edge id="{arm}_out" from="C" to="{arm}" {common}{shp_out}/>')
+        edges.append(f'    <edge id="{arm}_in" from="{arm}" to="C" numLanes="{lanes_in}" speed="{SPEED}"{shp_in}/>')
+        edges.append(f'    <edge id="{arm}_out" from="C" to="{arm}" numLanes="{lanes_out}" speed="{SPEED}"{shp_out}/>')
     (d / "net.nod.xml").write_text("<nodes>\n" + "\n".join(nodes) + "\n</nodes>\n")
     (d / "net.edg.xml").write_text("<edges>\n" + "\n".join(edges) + "\n</edges>\n")
-    build_network(d / "net.nod.xml", d / "net.edg.xml", d / "net.net.xml")
+    extra = []
+    if connections:
+        (d / "net.con.xml").write_text("<connections>\n" + connections + "</connections>\n")
+        extra = ["--connection-files", str(d / "net.con.xml")]
+    build_network(d / "net.nod.xml", d / "net.edg.xml", d / "net.net.xml", extra)
     write_view(name)
 
 
@@ -71,9 +76,25 @@ def write_view(name: str) -> None:
     )
 
 
+def two_lane_connections(arms: list[str]) -> str:
+    """cross4_2lane's lane use: on every approach lane 0 turns right or goes straight, lane 1 goes
+    straight, lane 2 is the left-turn lane; right turns end on the outer lane, left turns on the
+    inner one, straight on keeps its lane."""
+    order = {"N": 0, "E": 1, "S": 2, "W": 3}  # clockwise
+    clockwise = sorted(arms, key=order.get)
+    out = []
+    for k, arm in enumerate(clockwise):
+        # driving on the right: from N (heading south) the right turn goes to W, the left turn to E
+        right, straight, left = clockwise[(k + 3) % 4], clockwise[(k + 2) % 4], clockwise[(k + 1) % 4]
+        for fl, to, tl in ((0, right, 0), (0, straight, 0), (1, straight, 1), (2, left, 1)):
+            out.append(f'    <connection from="{arm}_in" to="{to}_out" fromLane="{fl}" toLane="{tl}"/>\n')
+    return "".join(out)
+
+
 def main() -> None:
     four = {"N": (0.0, ARM), "E": (ARM, 0.0), "S": (0.0, -ARM), "W": (-ARM, 0.0)}
     write("cross4", four)
+    write("cross4_2lane", four, lanes_in=3, lanes_out=2, connections=two_lane_connections(list(four)))
     write("tee3", {"E": (ARM, 0.0), "S": (0.0, -ARM), "W": (-ARM, 0.0)})
     arc = _arc_points()
     curved = dict(four, N=arc[-1])

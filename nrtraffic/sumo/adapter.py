@@ -137,7 +137,7 @@ def write_routes(path: Path, vtype, routes: dict[str, tuple[str, ...]], vehicles
         tid = rest[1] if len(rest) > 1 else types[0].id
         lines.append(
             f'    <vehicle id="{vid}" type="{tid}" route="{route}" depart="{depart:.2f}" '
-            f'departSpeed="{speed:.3f}" departPos="{pos}" departLane="0"/>'
+            f'departSpeed="{speed:.3f}" departPos="{pos}" departLane="best"/>'
         )
     lines.append("</routes>")
     path.write_text("\n".join(lines) + "\n")
@@ -303,30 +303,35 @@ class SumoSession:
         return self.traci.simulation.getMinExpectedNumber()
 
     # ---- network
-    def route_lanes(self, edges) -> list[tuple[str, list[tuple[float, float]], float]]:
-        """The lanes (index 0) a vehicle drives along ``edges``, junction-internal lanes
-        included: ``[(lane_id, shape, sumo_length), ...]``."""
+    def route_lanes(self, edges, first_lane: int = 0,
+                    lane_to: int | None = None) -> list[tuple[str, list[tuple[float, float]], float]]:
+        """The lanes a vehicle drives along ``edges``, starting on lane ``first_lane`` of the first
+        and following SUMO's connections from lane to lane (junction-internal lanes included):
+        ``[(lane_id, shape, sumo_length), ...]``. ``lane_to``: the lane index to take on the second
+        edge, where the first lane connects to several (default: the first connection)."""
         t = self.traci
         out = []
+        lane = f"{edges[0]}_{first_lane}"
         for k, e in enumerate(edges):
-            lane = f"{e}_0"
             out.append((lane, list(t.lane.getShape(lane)), t.lane.getLength(lane)))
             if k + 1 < len(edges):
                 nxt = edges[k + 1]
-                via = None
+                via = target = None
                 for link in t.lane.getLinks(lane):
-                    if link[0].rsplit("_", 1)[0] == nxt:
-                        via = link[4]
+                    if link[0].rsplit("_", 1)[0] == nxt and (
+                            k > 0 or lane_to is None or link[0] == f"{nxt}_{lane_to}"):
+                        target, via = link[0], link[4]
                         break
                 if via is None:
-                    raise SumoError(f"edge {e!r} has no connection to {nxt!r}")
+                    raise SumoError(f"lane {lane!r} has no connection to edge {nxt!r}")
                 # an internal lane may be split in pieces (a left turn waiting inside the junction):
                 # the next piece is the "via" of the internal lane's own link
                 while via and via.startswith(":"):
                     out.append((via, list(t.lane.getShape(via)), t.lane.getLength(via)))
                     links = t.lane.getLinks(via)
-                    nxt = links[0][4] if links else ""
-                    via = nxt if nxt and nxt.startswith(":") else None
+                    nxt_via = links[0][4] if links else ""
+                    via = nxt_via if nxt_via and nxt_via.startswith(":") else None
+                lane = target
         return out
 
     def lane_speed(self, lane: str) -> float:
@@ -358,6 +363,11 @@ class SumoSession:
     def hold_speed(self, vid: str, speed: float) -> None:
         """Let SUMO drive the vehicle at a fixed desired speed (safety checks stay on)."""
         self.traci.vehicle.setSpeed(vid, speed)
+
+    def keep_lane(self, vid: str) -> None:
+        """Let SUMO's driver make no lane change (lane-change mode 0): the vehicle stays on the
+        lane it was inserted on."""
+        self.traci.vehicle.setLaneChangeMode(vid, 0)
 
     def stop_at(self, vid: str, lane: str, pos_m: float) -> None:
         """Make SUMO's driver stop with its front bumper at ``pos_m`` [m] on ``lane`` (a lane of a

@@ -14,19 +14,35 @@ class NetworkError(ValueError):
 
 @dataclass(frozen=True)
 class JunctionMovement:
-    """One connection through a junction: incoming edge -> outgoing edge, with SUMO's direction."""
+    """One lane-to-lane connection through a junction: incoming edge and lane -> outgoing edge and
+    lane, with SUMO's direction."""
 
     in_edge: str
     out_edge: str
     turn: str  # left | straight | right | uturn
+    in_lane: int = 0  # index of the incoming lane (0: the rightmost)
+    out_lane: int = 0  # index of the lane it enters on the outgoing edge
+    in_lanes: int = 1  # lanes of the incoming edge
+
+    @property
+    def route(self) -> str:
+        """The turning movement it belongs to: ``<in_edge>.<turn>`` (the demand's unit)."""
+        return f"{self.in_edge}.{self.turn}"
+
+    @property
+    def lane(self) -> str:
+        """SUMO's id of the incoming lane."""
+        return f"{self.in_edge}_{self.in_lane}"
 
     @property
     def name(self) -> str:
-        return f"{self.in_edge}.{self.turn}"
+        """``<in_edge>.<turn>`` on a one-lane approach, ``<in_edge>_<lane>.<turn>`` on a wider one."""
+        return self.route if self.in_lanes == 1 else f"{self.lane}.{self.turn}"
 
 
 def junction_movements(net_path: Path, junction_id: str) -> tuple[list[JunctionMovement], tuple[float, float]]:
-    """The movements through ``junction_id`` (lane 0 of every incoming edge) and its position."""
+    """The movements through ``junction_id``, one per lane-to-lane connection of every incoming
+    lane (the first, where a lane connects to two lanes of the same road), and its position."""
     import sumolib
 
     net = sumolib.net.readNet(str(net_path), withInternal=True)
@@ -37,12 +53,16 @@ def junction_movements(net_path: Path, junction_id: str) -> tuple[list[JunctionM
     for edge in node.getIncoming():
         if edge.getFunction() == "internal":
             continue
-        lane = edge.getLanes()[0]
-        for con in lane.getOutgoing():
-            turn = TURNS.get(con.getDirection(), con.getDirection())
-            if turn == "uturn":
-                continue
-            out.append(JunctionMovement(edge.getID(), con.getTo().getID(), turn))
+        lanes = edge.getLanes()
+        for k, lane in enumerate(lanes):
+            seen = set()
+            for con in lane.getOutgoing():
+                turn = TURNS.get(con.getDirection(), con.getDirection())
+                to = con.getTo().getID()
+                if turn == "uturn" or to in seen:
+                    continue
+                seen.add(to)
+                out.append(JunctionMovement(edge.getID(), to, turn, k, con.getToLane().getIndex(), len(lanes)))
     if not out:
         raise NetworkError(f"junction {junction_id!r} ({node.getType()}) has no movements: no incoming lane "
                            f"connects through it to another road, so there is nothing to coordinate")
