@@ -35,7 +35,7 @@ from nrtraffic.planning.profiles import from_rest, packed_position
 from nrtraffic.results import VEHICLE_COLUMNS, RunResult, TrajectoryWriter, parse_queues
 from nrtraffic.scenario import TURNS, Scenario
 from nrtraffic.sumo.adapter import SumoSession, VehicleType, sumo_version, write_routes, write_sumocfg
-from nrtraffic.sumo.network import junction_movements
+from nrtraffic.sumo.network import NetworkError, junction_movements
 from nrtraffic.vehicle.fuel import fuel_rate
 
 N_PROFILE_SEG = 81  # packed profile segments (closed forms: at most 3 arcs + cruise; rear-end QP: 80 + cruise)
@@ -458,6 +458,16 @@ class Engine:
                 self.zone_cuts[name] = s_m - s_c
             if s_x > path.length:
                 raise ValueError(f"movement {name}: the merging zone runs past the end of the route")
+            internal = [k for k, (ln, _, _) in enumerate(lanes) if ln.startswith(":")]
+            if self.junction_xy is not None and internal:
+                # the junction (its internal lanes, where the paths cross and turn) lies inside the
+                # merging zone: the coordinator plans the crossings there, the stop lines lie before it
+                r = max(float(np.hypot(*(np.asarray(lanes[k][1]) - self.junction_xy).T).max()) for k in internal)
+                if r > z.merging_zone_m / 2.0 + 0.5:
+                    raise ValueError(f"movement {name}: junction {self.sc.junction.id}'s internal lanes reach "
+                                     f"{r:.1f} m from its centre, beyond the merging zone (zones.merging_zone_m = "
+                                     f"{z.merging_zone_m:g} m); set it to at least {2.0 * math.ceil(r + 1.0):g} m")
+            self._check_turn_radius(name, path, s_c, s_x)
             v_lim = min(sumo.lane_speed(ln) for ln, _, _ in lanes) if self.junction_xy is not None else math.inf
             v_lim = min(v_lim, _curve_speed(path, s_m, s_x, self.sc.planning.max_lateral_accel_mps2))
             out[name] = Movement(name, appr, turn, route, path, [ln for ln, _, _ in lanes], offsets, s_c, s_m, s_x,
@@ -467,6 +477,27 @@ class Engine:
                   f"routes start; cut there: " + ", ".join(f"{k} {v:.0f} m" for k, v in self.zone_cuts.items()),
                   file=sys.stderr)
         return out
+
+    def _check_turn_radius(self, name: str, path: LanePath, s_from: float, s_to: float, window_m: float = 2.0) -> None:
+        """Raise ValueError when movement ``name``'s path between ``s_from`` and ``s_to`` [m] turns
+        tighter than the controlled car can steer: the curvature averaged over ``window_m`` [1/m]
+        above the kinematic bound ``tan(steer_max) / (l_f + l_r)``. (netconvert draws a junction's
+        turns with the node's ``radius``, 4 m by default; at a sharply skewed corner that can leave
+        a turn tighter than any car's.)"""
+        sel = (path.s >= s_from) & (path.s <= s_to)
+        s = path.s[sel]
+        n = max(1, int(round(window_m / PATH_SPACING_M)))
+        if len(s) <= n:
+            return
+        h = np.unwrap(path.heading_at(s))
+        kappa = np.abs(h[n:] - h[:-n]) / (s[n:] - s[:-n])
+        p = self.params
+        k_max = math.tan(self.sc.controller.steer_max_rad) / (p.lf + p.lr)
+        if kappa.max() > k_max:
+            raise ValueError(f"movement {name}: its path turns on a radius of {1.0 / kappa.max():.1f} m, tighter than "
+                             f"the vehicle's smallest ({1.0 / k_max:.1f} m at controller.steer_max_rad = "
+                             f"{self.sc.controller.steer_max_rad:.3g} rad); give the junction a larger turning radius "
+                             f"in the network (netconvert: the node's radius, or --default.junctions.radius)")
 
     def _stop_lines(self) -> dict[tuple[str, str], tuple[str, float]]:
         """Where a vehicle that must stand before it crosses stops, per movement and driver: the
@@ -635,7 +666,9 @@ class Engine:
     # ------------------------------------------------------------------ run
     def run(self) -> RunResult:
         """Run the simulation; returns a :class:`RunResult` or raises :class:`RunFailed` (with the
-        partial result) when SUMO or a component fails mid-run."""
+        partial result) when SUMO or a component fails mid-run, and
+        :class:`~nrtraffic.sumo.network.NetworkError` when the junction and its zones do not suit
+        (found once SUMO has read the network, before anything is simulated)."""
         self.workdir.mkdir(parents=True, exist_ok=True)
         sdir = self.workdir / "sumo"
         sdir.mkdir(exist_ok=True)
@@ -664,14 +697,21 @@ class Engine:
                 gui=self.gui,
             )
             with self.sumo:
-                self.paths = self._paths(self.sumo)
-                self._pack_paths()
-                self.relations = self._relations()
-                self.stop_line = self._stop_lines() if (self._humans and self.control) else {}
+                try:
+                    self.paths = self._paths(self.sumo)
+                    self._pack_paths()
+                    self.relations = self._relations()
+                    self.stop_line = self._stop_lines() if (self._humans and self.control) else {}
+                except ValueError as exc:  # the junction or its zones do not suit: nothing was run
+                    raise NetworkError(f"{self.sc.general.name}: {exc}") from None
                 self._write_movements()
                 self.coord = Coordinator(self.sc.coordinator, self.sc.planning, self.relations,
                                          areas=self.conflict_areas)
                 self._loop()
+        except NetworkError:
+            if self.traj is not None:
+                self.traj.close()
+            raise
         except (Exception, KeyboardInterrupt) as exc:  # keep what was finished
             error = exc
         wall = time.perf_counter() - wall0

@@ -10,7 +10,7 @@ from pathlib import Path
 from nrtraffic import scenario as scenario_mod
 from nrtraffic.engine import Engine, RunFailed
 from nrtraffic.results import RunResult, TrajectoryWriter, write_movements, write_summary, write_table, write_vehicles
-from nrtraffic.sumo.network import check_scenario, check_sumo_args
+from nrtraffic.sumo.network import NetworkError, check_scenario, check_sumo_args
 
 
 def check(sc: scenario_mod.Scenario) -> None:
@@ -105,6 +105,14 @@ def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: 
     engine = Engine(resolved, out, trajectories=writer, progress=progress, checkpoint=checkpoint, **engine_options)
     try:
         result = engine.run()
+    except NetworkError:  # the junction or its zones do not suit: nothing was simulated, nothing is kept
+        for name in RUN_FILES:
+            p = out / name
+            if p.is_dir():
+                shutil.rmtree(p, ignore_errors=True)
+            elif p.exists():
+                p.unlink()
+        raise
     except RunFailed as exc:
         exc.result.summary.update(extra_summary or {})
         try:

@@ -1,4 +1,5 @@
-"""Regenerate the plain XML and networks of the junction scenarios (cross4, cross4_2lane, tee3, cross4_curved).
+"""Regenerate the plain XML and networks of the junction scenarios (cross4, cross4_2lane, tee3,
+cross4_curved), and convert the hand-drawn station_mill.
 
 Every arm is one lane each way (cross4_2lane: two lanes out, and in two lanes and a left-turn
 lane, with the lane use of ``net.con.xml``), 520 m long, 50 km/h (13.89 m/s); the junction node "C" is at the
@@ -60,7 +61,7 @@ def write(name: str, arms: dict[str, tuple[float, float]], shapes: dict[str, lis
     write_view(name)
 
 
-def write_view(name: str) -> None:
+def write_view(name: str, network: str = "net.net.xml") -> None:
     """``demand.rou.xml`` and ``<name>.sumocfg`` of a scenario folder."""
     d = HERE / name
     # the scenario's demand for its own seed and duration, to watch under SUMO's own driving
@@ -71,7 +72,7 @@ def write_view(name: str) -> None:
     (d / f"{name}.sumocfg").write_text(
         "<configuration>\n    <!-- sumo-gui -c: the network with the scenario's demand for its seed, driven by SUMO;\n"
         "         runs are driven by `nrtraffic run` (make nets writes this file and demand.rou.xml) -->\n"
-        '    <input>\n        <net-file value="net.net.xml"/>\n        <route-files value="demand.rou.xml"/>\n'
+        f'    <input>\n        <net-file value="{network}"/>\n        <route-files value="demand.rou.xml"/>\n'
         '    </input>\n</configuration>\n'
     )
 
@@ -91,6 +92,15 @@ def two_lane_connections(arms: list[str]) -> str:
     return "".join(out)
 
 
+def station_mill() -> None:
+    """station_mill is drawn by hand (its plain XML is the source, not written here): only
+    converted, with netconvert's options of ``station_mill/README.md``."""
+    d = HERE / "station_mill"
+    build_network(d / "station_mill.nod.xml", d / "station_mill.edg.xml", d / "station_mill.net.xml",
+                  ["--junctions.internal-link-detail", "20"])
+    write_view("station_mill", "station_mill.net.xml")
+
+
 def main() -> None:
     four = {"N": (0.0, ARM), "E": (ARM, 0.0), "S": (0.0, -ARM), "W": (-ARM, 0.0)}
     write("cross4", four)
@@ -99,6 +109,7 @@ def main() -> None:
     arc = _arc_points()
     curved = dict(four, N=arc[-1])
     write("cross4_curved", curved, shapes={"N": arc})
+    station_mill()
 
 
 if __name__ == "__main__":

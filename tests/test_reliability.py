@@ -203,3 +203,32 @@ def test_out_holding_another_run_is_refused_unless_forced(tmp_path, capsys):
     other.mkdir()
     (other / "x").write_text("")
     assert main(["baseline", str(CROSS4), "--junction", "priority", "--out", str(other), "--duration", "4"]) == 2
+
+
+@pytest.mark.parametrize("edit, message", [
+    # netconvert's default corner (4 m) and junction-lane detail (5 points): a 126-degree turn too
+    # tight for the car
+    ("default_corner", "movement MillLn_EB.right: its path turns on a radius of"),
+    # a merging zone smaller than the junction
+    ("small_zone", "internal lanes reach 21.3 m from its centre, beyond the merging zone"),
+])
+def test_a_junction_the_car_cannot_drive_exits_2_naming_the_movement(edit, message, tmp_path, capsys):
+    from nrtraffic.sumo.netbuild import build_network
+
+    src = SCENARIOS / "station_mill"
+    d = tmp_path / "scen"
+    d.mkdir()
+    for f in src.iterdir():
+        if f.is_file():
+            (d / f.name).write_bytes(f.read_bytes())
+    if edit == "default_corner":
+        nod = d / "station_mill.nod.xml"
+        nod.write_text(nod.read_text().replace(' radius="15"', ""))
+        build_network(nod, d / "station_mill.edg.xml", d / "station_mill.net.xml")
+    else:
+        toml = d / "scenario.toml"
+        toml.write_text(toml.read_text().replace("merging_zone_m = 46.0", "merging_zone_m = 30.0"))
+    out = tmp_path / "o"
+    assert main(["run", str(d), "--out", str(out), "--duration", "5", "--no-progress"]) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists() or not any(out.iterdir())  # nothing was simulated, nothing is left
