@@ -467,7 +467,8 @@ class Engine:
                     raise ValueError(f"movement {name}: junction {self.sc.junction.id}'s internal lanes reach "
                                      f"{r:.1f} m from its centre, beyond the merging zone (zones.merging_zone_m = "
                                      f"{z.merging_zone_m:g} m); set it to at least {2.0 * math.ceil(r + 1.0):g} m")
-            self._check_turn_radius(name, path, s_c, s_x)
+            if self.control:  # (SUMO drives a baseline's vehicles: the path only measures them)
+                self._check_turn_radius(name, path, s_c, s_x)
             v_lim = min(sumo.lane_speed(ln) for ln, _, _ in lanes) if self.junction_xy is not None else math.inf
             v_lim = min(v_lim, _curve_speed(path, s_m, s_x, self.sc.planning.max_lateral_accel_mps2))
             out[name] = Movement(name, appr, turn, route, path, [ln for ln, _, _ in lanes], offsets, s_c, s_m, s_x,
