@@ -28,6 +28,7 @@ from nrtraffic.control.leaders import find_leaders, pack_path_lanes
 from nrtraffic.control.nr_flow import PREDICTORS
 from nrtraffic.demand import shifted_exponential_arrivals
 from nrtraffic.geometry import LanePath, segment_frames, touching_pairs
+from nrtraffic.junction import Junction, Movement
 from nrtraffic.planning.conflicts import MovementGeometry, classify, conflict_areas
 from nrtraffic.planning.coordinator import REAR_END_TOL_M, Assignment, Coordinator, Request, ScheduleInfeasible
 from nrtraffic.planning.crossing import CrossingBounds, human_crossing
@@ -35,7 +36,7 @@ from nrtraffic.planning.profiles import from_rest, packed_position
 from nrtraffic.results import VEHICLE_COLUMNS, RunResult, TrajectoryWriter, parse_queues
 from nrtraffic.scenario import TURNS, Scenario
 from nrtraffic.sumo.adapter import SumoSession, VehicleType, sumo_version, write_routes, write_sumocfg
-from nrtraffic.sumo.network import NetworkError, junction_movements
+from nrtraffic.sumo.network import NetworkError, edge_nodes, junction_movements
 from nrtraffic.vehicle.fuel import fuel_rate
 
 N_PROFILE_SEG = 81  # packed profile segments (closed forms: at most 3 arcs + cruise; rear-end QP: 80 + cruise)
@@ -48,6 +49,7 @@ STOP_BEFORE_M = 0.5  # a vehicle that must stand before it crosses stops this fa
 FROM_REST_SLACK_S = 0.3
 HUMAN_BODY = "~human"  # suffix of a movement's name for a human driver's body on it (conflict areas)
 SHARE_STREAM = 0x6875_6D61_6E  # the run seed's stream that draws which vehicles are controlled ("human")
+ROUTE_STREAM = 0x726F_757465  # the run seed's stream that draws a vehicle's turns after its first junction ("route")
 CHECKPOINT_WALL_S = 10.0  # wall time between checkpoints of the figures (``checkpoint``) [s]
 # parts of the loop timed for ``wall_time_breakdown_s``: the compiled kernel (with the Python that
 # reads its results), SUMO's step (with its collision list), reading and writing SUMO's vehicles,
@@ -84,34 +86,6 @@ class RunFailed(RuntimeError):
 
 
 @dataclass
-class Movement:
-    """A movement's lane path and its zone boundaries (arc length of the centre of gravity) [m].
-
-    A movement is one lane-to-lane connection: ``approach`` is the incoming road, ``turn`` the
-    turning movement (left, straight, right; ``through`` on a plain road), ``route_name`` the
-    turning movement it belongs to (the demand's unit: ``<approach>.<turn>``, several lanes may
-    serve it), and ``lanes[0]`` its entry lane, the coordinator's lane key.
-    """
-
-    name: str
-    approach: str
-    turn: str
-    route: tuple[str, ...]
-    path: LanePath
-    lanes: list  # lane ids in driving order
-    lane_offset: dict  # lane id -> (s at lane start, path length / SUMO length)
-    s_control: float
-    s_merge: float
-    s_exit: float
-    v_limit: float = math.inf  # lowest lane speed limit along the path (SUMO's turn speeds) [m/s]
-    route_name: str = ""
-
-    def s_of(self, lane: str, pos: float) -> float:
-        off, scale = self.lane_offset[lane]
-        return off + pos * scale
-
-
-@dataclass
 class VehicleRecord:
     vehicle_id: str
     approach: str
@@ -119,6 +93,9 @@ class VehicleRecord:
     movement: str = ""  # its lane-level movement (a key of Engine.paths), from the lane SUMO gives it
     route: str = ""  # its turning movement (the demand's route name)
     lane: str = ""  # its entry lane: the coordinator's lane key
+    junction: str = ""  # the junction it crosses (a record is one crossing; a corridor trip has several)
+    legs: tuple = ()  # the turning movements of its trip, one per junction, in order
+    leg: int = 0  # which of them this record is
     v_free: float = math.nan  # its free-flow speed: the speed it was sent in with [m/s]
     controlled: bool = True
     driver: str = "automated"  # or "human" (demand.controlled_share): what kind of vehicle it is
@@ -165,6 +142,7 @@ class Engine:
         crossings and figures are measured the same way.
     network : a network to use instead of the scenario's (the baselines' junction control).
     label : what drove the vehicles, for the summary ("nrtraffic" or the baseline's name).
+    additional : further SUMO additional files (a baseline's coordinated signal offsets).
     checkpoint : called with the figures so far (a :class:`RunResult` whose summary says
         ``"status": "running"``) about every ``CHECKPOINT_WALL_S`` seconds of wall time, so that a
         run killed outright leaves its last checkpoint on disk. Wall-clock timing only decides
@@ -173,8 +151,10 @@ class Engine:
 
     def __init__(self, scenario: Scenario, workdir: Path, seed: int | None = None, duration_s: float | None = None,
                  trajectories: TrajectoryWriter | None = None, progress: bool = False, control: bool = True,
-                 network: Path | None = None, label: str = "nrtraffic", checkpoint=None, gui: bool = False):
+                 network: Path | None = None, label: str = "nrtraffic", checkpoint=None, gui: bool = False,
+                 additional: tuple = ()):
         self.sc = scenario
+        self.additional = tuple(additional)
         self.control = control
         self.network_path = Path(network) if network is not None else scenario.network_path
         self.label = label
@@ -228,7 +208,8 @@ class Engine:
         self.noise_sd[[kb.NZ_VL, kb.NZ_VN, kb.NZ_LVX, kb.NZ_LVY]] = dist.speed_noise_mps
         self.noise_sd[kb.NZ_PSI] = dist.heading_noise_rad
         self.noise_rng = np.random.default_rng([self.seed, 0x6E6F697365]) if dist.noisy else None
-        self.records: dict[str, VehicleRecord] = {}
+        self.records: dict[str, VehicleRecord] = {}  # each vehicle's crossing now (or its last)
+        self.crossings: list[VehicleRecord] = []  # a corridor's finished crossings of junctions before the last
         self.zone_cuts: dict[str, float] = {}  # movement -> its control zone's length where it was cut [m]
         self.collision_pairs: set[tuple[str, str]] = set()
         self.geometric_collisions: set[tuple[str, str]] = set()
@@ -239,23 +220,43 @@ class Engine:
 
     # ------------------------------------------------------------------ set-up
     def _movement_table(self) -> None:
-        """Movements known before SUMO starts. ``movement_table``: turning movement (the demand's
-        route) -> (approach, turn, route edges); ``lane_movements``: turning movement -> its
-        lane-level movements ``(entry lane, name, entry lane index, exit lane index)``, one per
-        lane that serves it (a one-lane approach: one, of the same name)."""
+        """Junctions and movements known before SUMO starts. ``junctions``: id -> :class:`Junction`
+        (its zones; its movements, relations and coordinator follow once SUMO runs);
+        ``movement_table``: turning movement (``<approach>.<turn>``, the demand's unit) ->
+        (approach, turn, route edges); ``lane_movements``: turning movement -> its lane-level
+        movements ``(entry lane, name, entry lane index, exit lane index)``, one per lane that serves
+        it (a one-lane approach: one, of the same name); ``movement_junction``: turning movement ->
+        the junction it crosses; ``next_junction``: outgoing edge -> the controlled junction it
+        leads into, where there is one (a corridor)."""
         sc = self.sc
         self.movement_table: dict[str, tuple[str, str, tuple[str, ...]]] = {}
         self.lane_movements: dict[str, list[tuple[str, str, int, int | None]]] = {}
-        if sc.junction.id:
-            moves, self.junction_xy = junction_movements(self.network_path, sc.junction.id)
+        self.movement_junction: dict[str, str] = {}
+        self.junctions: dict[str, Junction] = {}
+        self.next_junction: dict[str, str] = {}
+        specs = sc.controlled_junctions()
+        for j in specs:
+            moves, xy = junction_movements(self.network_path, j.id)
+            self.junctions[j.id] = Junction(j.id, xy, j.control_zone_m, j.merging_zone_m)
             for m in moves:
                 self.movement_table[m.route] = (m.in_edge, m.turn, (m.in_edge, m.out_edge))
                 self.lane_movements.setdefault(m.route, []).append((m.lane, m.name, m.in_lane, m.out_lane))
+                self.movement_junction[m.route] = j.id
+        if len(specs) > 1:
+            nodes = edge_nodes(self.network_path)
+            self.next_junction = {e: to for e, (_, to) in nodes.items() if to in self.junctions}
+            self.upstream_junction = {e: fr for e, (fr, _) in nodes.items() if fr in self.junctions}
         else:
-            self.junction_xy = None
+            self.upstream_junction = {}
+        if not specs:
+            z = sc.zones
+            self.junctions[""] = Junction("", None, z.control_zone_m, z.merging_zone_m)
             for a in sc.approaches:
                 self.movement_table[a.name] = (a.name, "through", a.route)
                 self.lane_movements[a.name] = [(f"{a.route[0]}_0", a.name, 0, None)]
+                self.movement_junction[a.name] = ""
+        # where demand enters: the approaches that do not come from another controlled junction
+        self.entry_approaches = {a for a, _, _ in self.movement_table.values() if a not in self.upstream_junction}
 
     def _demand(self) -> list[tuple]:
         """Departures ``(vehicle_id, movement, depart_s, depart_speed, depart_pos, type)`` from the
@@ -281,7 +282,7 @@ class Engine:
             if d.max_vehicles == 0 and not math.isfinite(end):
                 raise ValueError("random demand needs demand.max_vehicles, demand.end_s or scenario.duration_s")
             for appr, (rate, names, share) in rates.items():
-                if rate <= 0:
+                if rate <= 0 or appr not in self.entry_approaches:  # (a corridor's inner approach: shares only)
                     continue
                 if not d.intervals:
                     headway = 3600.0 / rate if d.flows else d.headway_s  # (as given: the same draws)
@@ -310,10 +311,54 @@ class Engine:
                 raise ValueError(f"vehicle {v.id}: {mv!r} is not a movement ({', '.join(self.movement_table)})")
             veh.append((v.id, mv, v.depart_s, v.depart_speed_mps, v.depart_pos_m))
         veh.sort(key=lambda v: v[2])
+        self.itineraries: dict[str, tuple[str, ...]] = {}
+        if self.next_junction:
+            veh = self._extend_routes(veh, rates)
         u = np.random.default_rng([self.seed, SHARE_STREAM]).random(len(veh))
         share = d.controlled_share
         listed = {v.id for v in self.sc.vehicles}
         return [(*v, "human" if (x >= share and v[0] not in listed) else "auto") for v, x in zip(veh, u)]
+
+    def _extend_routes(self, veh: list[tuple], rates: dict) -> list[tuple]:
+        """A corridor: each departure's route continues through every controlled junction its last
+        movement leads into, with a turn drawn there (its own stream of the seed, in order of
+        departure) from that approach's shares (``[[demand.flows]]`` of the approach, as turning
+        movement counts, else the global turning shares). The route of a trip through several
+        junctions is named by its movements joined with "+" (:attr:`itineraries`)."""
+        rng = np.random.default_rng([self.seed, ROUTE_STREAM])
+        d = self.sc.demand
+        shares = {}
+        for appr in {a for a, _, _ in self.movement_table.values()}:
+            if appr in rates:
+                _, names, share = rates[appr]
+            else:
+                names = [n for n, (a, _, _) in self.movement_table.items() if a == appr]
+                share = np.array([{"left": d.turn_left, "right": d.turn_right}.get(self.movement_table[n][1],
+                                  1.0 - d.turn_left - d.turn_right) for n in names])
+            if share.sum() <= 0:
+                share = np.ones(len(names))
+            shares[appr] = (names, share / share.sum())
+        out = []
+        for vid, first, *rest in veh:
+            legs = [first]
+            while len(legs) <= len(self.junctions):
+                edge_out = self.movement_table[legs[-1]][2][-1]
+                if edge_out not in self.next_junction:
+                    break
+                names, p = shares[edge_out]
+                legs.append(names[int(rng.choice(len(names), p=p))])
+            key = "+".join(legs)
+            self.itineraries[key] = tuple(legs)
+            out.append((vid, key, *rest))
+        return out
+
+    def _route_edges(self, route: str) -> tuple[str, ...]:
+        """The edges of a demand route: a turning movement's, or a corridor trip's (:attr:`itineraries`)."""
+        legs = self.itineraries.get(route, (route,))
+        edges = list(self.movement_table[legs[0]][2])
+        for leg in legs[1:]:
+            edges += list(self.movement_table[leg][2][1:])
+        return tuple(edges)
 
     QUEUE_PERIOD_S = 10.0  # aggregation period of the queue detectors [s]
 
@@ -321,8 +366,8 @@ class Engine:
         """At a junction: one SUMO lane-area (E2) detector over every lane of every approach, with
         SUMO's default halting and jam thresholds, written every ``QUEUE_PERIOD_S`` to
         ``queues.xml`` (:meth:`approach_table`); the SUMO arguments that load them."""
-        if not self.sc.junction.id:
-            return ()
+        if not self.sc.controlled_junctions():
+            return ("--additional-files", ",".join(map(str, self.additional))) if self.additional else ()
         from nrtraffic.sumo.network import edge_lanes
 
         out = (self.workdir / "queues.xml").resolve()
@@ -334,7 +379,7 @@ class Engine:
         lines.append("</additional>")
         path = sdir / "queues.add.xml"
         path.write_text("\n".join(lines) + "\n")
-        return ("--additional-files", str(path))
+        return ("--additional-files", ",".join(map(str, (path, *self.additional))))
 
     def queue_series(self) -> pd.DataFrame:
         """Queues per approach and detector period (:func:`parse_queues` of ``queues.xml``)."""
@@ -402,14 +447,16 @@ class Engine:
         return out
 
     def demand_veh_h(self, begin: float, end: float, approach: str | None = None) -> float:
-        """Mean demand into the junction (or one approach) over ``[begin, end]`` [veh/h]: every
-        approach's rate times the intervals' scale, averaged over the window (not the sampled
+        """Mean demand into the junctions (or one approach) over ``[begin, end]`` [veh/h]: every
+        entry approach's rate times the intervals' scale, averaged over the window (not the sampled
         arrivals); with ``demand.sumo_routes``, the file's departures in the window."""
         if self.sc.demand.sumo_routes:
             times = [t for vid, (mv, t, _) in self._all_departures.items()
                      if begin <= t <= end and (approach is None or self.movement_table[mv][0] == approach)]
             return len(times) / (end - begin) * 3600.0 if end > begin else 0.0
-        rates = self._approach_rates()
+        if approach is not None and approach not in self.entry_approaches:
+            return math.nan  # a corridor's inner approach: fed by the junction upstream, not by demand
+        rates = {a: r for a, r in self._approach_rates().items() if a in self.entry_approaches}
         if approach is not None:
             rates = {a: r for a, r in rates.items() if a == approach}
         total = sum(r for r, _, _ in rates.values())
@@ -421,12 +468,16 @@ class Engine:
         return total * sum((b - a) * d.scale_at(a) for a, b in zip(cuts, cuts[1:])) / (end - begin)
 
     def _paths(self, sumo: SumoSession) -> dict[str, Movement]:
+        """Every movement's path (its lanes from SUMO, smoothed) and zones, of every junction;
+        each junction lists its own (:attr:`Junction.movements`). Raises ValueError naming the
+        movement where a zone does not fit, or the car cannot drive its turn."""
         out = {}
-        z = self.sc.zones
         merge_at = {a.name: a for a in self.sc.approaches}
         moves = [(rname, *lm) for rname in self.movement_table for lm in self.lane_movements[rname]]
         for rname, _lane, name, lane_in, lane_out in moves:
             appr, turn, route = self.movement_table[rname]
+            j = self.junctions[self.movement_junction[rname]]
+            where = f"junction {j.id}" if len(self.junctions) > 1 else "zones"
             lanes = sumo.route_lanes(route, lane_in, lane_out)
             pts = [pt for _, shape, _ in lanes for pt in shape]
             path = LanePath.from_points(pts, smooth_spacing=PATH_SPACING_M)
@@ -434,10 +485,9 @@ class Engine:
             starts = [path.project(shape[0])[0] for _, shape, _ in lanes] + [path.length]
             offsets = {lane: (starts[k], (starts[k + 1] - starts[k]) / length if length > 0 else 1.0)
                        for k, (lane, _, length) in enumerate(lanes)}
-            if self.junction_xy is not None:
+            if j.xy is not None:
                 # merging zone: the disc of diameter merging_zone_m around the junction centre
-                dist = np.hypot(path.xy[:, 0] - self.junction_xy[0], path.xy[:, 1] - self.junction_xy[1])
-                inside = np.flatnonzero(dist <= z.merging_zone_m / 2.0)
+                inside = np.flatnonzero(j.in_merging_zone(path.xy))
                 if inside.size == 0 or inside[0] == 0:
                     raise ValueError(f"movement {name}: its path does not enter the merging zone from outside")
                 s_m, s_x = float(path.s[inside[0]]), float(path.s[min(inside[-1], len(path.s) - 1)])
@@ -445,11 +495,18 @@ class Engine:
                 a = merge_at[rname]
                 lane_m = f"{a.merge_entry_edge}_0"
                 s_m = offsets[lane_m][0] + a.merge_entry_pos_m * offsets[lane_m][1]
-                s_x = s_m + z.merging_zone_m
-            s_c = s_m - z.control_zone_m
-            # a car inserted at the route's start has its centre of gravity behind one car length: a
-            # zone reaching further back is cut there, and the cut reported
+                s_x = s_m + j.merging_zone_m
+            s_c = s_m - j.control_zone_m
+            # a car inserted at the route's start has its centre of gravity behind one car length;
+            # on a corridor the road starts at the junction upstream, which hands the car over where
+            # it leaves that junction's merging zone: a zone reaching further back is cut there, and
+            # the cut reported
             first = self.params.length
+            up = self.junctions.get(self.upstream_junction.get(appr, ""))
+            if up is not None and up.xy is not None:
+                near = np.flatnonzero(up.in_merging_zone(path.xy))
+                if near.size:
+                    first = max(first, float(path.s[min(near[-1] + 1, len(path.s) - 1)]))
             if s_c < first:
                 if s_m - first < MIN_CONTROL_ZONE_M:
                     raise ValueError(f"movement {name}: only {s_m - first:.1f} m of its route lie before the merging "
@@ -459,23 +516,24 @@ class Engine:
             if s_x > path.length:
                 raise ValueError(f"movement {name}: the merging zone runs past the end of the route")
             internal = [k for k, (ln, _, _) in enumerate(lanes) if ln.startswith(":")]
-            if self.junction_xy is not None and internal:
+            if j.xy is not None and internal:
                 # the junction (its internal lanes, where the paths cross and turn) lies inside the
                 # merging zone: the coordinator plans the crossings there, the stop lines lie before it
-                r = max(float(np.hypot(*(np.asarray(lanes[k][1]) - self.junction_xy).T).max()) for k in internal)
-                if r > z.merging_zone_m / 2.0 + 0.5:
-                    raise ValueError(f"movement {name}: junction {self.sc.junction.id}'s internal lanes reach "
-                                     f"{r:.1f} m from its centre, beyond the merging zone (zones.merging_zone_m = "
-                                     f"{z.merging_zone_m:g} m); set it to at least {2.0 * math.ceil(r + 1.0):g} m")
+                r = max(float(np.hypot(*(np.asarray(lanes[k][1]) - j.xy).T).max()) for k in internal)
+                if r > j.merging_zone_m / 2.0 + 0.5:
+                    raise ValueError(f"movement {name}: junction {j.id}'s internal lanes reach "
+                                     f"{r:.1f} m from its centre, beyond the merging zone ({where}.merging_zone_m = "
+                                     f"{j.merging_zone_m:g} m); set it to at least {2.0 * math.ceil(r + 1.0):g} m")
             if self.control:  # (SUMO drives a baseline's vehicles: the path only measures them)
                 self._check_turn_radius(name, path, s_c, s_x)
-            v_lim = min(sumo.lane_speed(ln) for ln, _, _ in lanes) if self.junction_xy is not None else math.inf
+            v_lim = min(sumo.lane_speed(ln) for ln, _, _ in lanes) if j.xy is not None else math.inf
             v_lim = min(v_lim, _curve_speed(path, s_m, s_x, self.sc.planning.max_lateral_accel_mps2))
             out[name] = Movement(name, appr, turn, route, path, [ln for ln, _, _ in lanes], offsets, s_c, s_m, s_x,
-                                 v_lim, rname)
+                                 v_lim, rname, j.id)
+            j.movements.append(name)
         if self.zone_cuts:
-            print(f"{self.sc.general.name}: zones.control_zone_m = {z.control_zone_m:g} m reaches back past where "
-                  f"routes start; cut there: " + ", ".join(f"{k} {v:.0f} m" for k, v in self.zone_cuts.items()),
+            print(f"{self.sc.general.name}: control zones reach back past where routes start or past the junction "
+                  f"upstream; cut there: " + ", ".join(f"{k} {v:.0f} m" for k, v in self.zone_cuts.items()),
                   file=sys.stderr)
         return out
 
@@ -528,8 +586,8 @@ class Engine:
                         lane = ln
                 if lane is None or lane.startswith(":"):
                     raise ValueError(f"movement {name}: its merging-zone entry lies inside the junction, where a "
-                                     f"vehicle cannot stop (zones.merging_zone_m = {self.sc.zones.merging_zone_m:g} m "
-                                     "is smaller than the junction)")
+                                     f"vehicle cannot stop (the merging zone, "
+                                     f"{self.junctions[m.junction].merging_zone_m:g} m, is smaller than the junction)")
                 off, scale = m.lane_offset[lane]
                 out[(name, driver)] = (lane, (s_front - off) / scale)
         return out
@@ -542,7 +600,8 @@ class Engine:
 
         doc = {
             "movements": {
-                m.name: {"approach": m.approach, "turn": m.turn, "route": list(m.route), "lanes": m.lanes,
+                m.name: {**({"junction": m.junction} if len(self.junctions) > 1 else {}),
+                         "approach": m.approach, "turn": m.turn, "route": list(m.route), "lanes": m.lanes,
                          "control_zone_start_m": m.s_control, "merge_entry_m": m.s_merge, "merge_exit_m": m.s_exit,
                          "zone_length_m": m.s_exit - m.s_merge,
                          "v_limit_mps": None if not math.isfinite(m.v_limit) else m.v_limit,
@@ -552,7 +611,9 @@ class Engine:
                                        for d, (x, y) in zip(*self._zone_path(m))]}
                 for m in self.paths.values()
             },
-            "relations": {a: {b: self.relations[(a, b)] for b in self.paths if b != a} for a in self.paths},
+            # between the movements of the same junction
+            "relations": {a: {b: self.relations[(a, b)] for b in self.junctions[m.junction].movements if b != a}
+                          for a, m in self.paths.items()},
             # on a's path, measured from its merging-zone entry [m]: where its body can touch b's
             "conflict_areas": [{"movement": a, "with": b, "from_m": lo, "to_m": hi}
                                for (a, b), (lo, hi) in sorted(getattr(self, "conflict_areas", {}).items())
@@ -562,9 +623,12 @@ class Engine:
                  for (a, b), (lo, hi) in sorted(getattr(self, "conflict_areas", {}).items()) if HUMAN_BODY in a + b]
         if human:  # with human drivers: the areas of their bodies ("<movement>~human") against every body
             doc["conflict_areas_human"] = human
-        if self.junction_xy is not None:
-            doc["merging_zone"] = {"centre_xy": [float(c) for c in self.junction_xy],
-                                   "diameter_m": self.sc.zones.merging_zone_m}
+        zones = {j.id: {"centre_xy": [float(c) for c in j.xy], "diameter_m": j.merging_zone_m}
+                 for j in self.junctions.values() if j.xy is not None}
+        if len(zones) == 1:
+            doc["merging_zone"] = next(iter(zones.values()))
+        elif zones:
+            doc["merging_zones"] = zones
         (self.workdir / "movements.json").write_text(json.dumps(doc, indent=1) + "\n")
 
     @staticmethod
@@ -620,8 +684,21 @@ class Engine:
         return np.interp(s, np.array(ss), hs)
 
     def _relations(self) -> dict:
+        """Relations and conflict areas of each junction's movements among themselves (set on each
+        :class:`Junction`); returns every junction's relations in one table, as
+        :attr:`conflict_areas` holds every junction's areas (the names do not repeat)."""
+        relations, self.conflict_areas = {}, {}
+        for j in self.junctions.values():
+            j.relations, j.conflict_areas = self._junction_relations([self.paths[n] for n in j.movements])
+            relations.update(j.relations)
+            self.conflict_areas.update(j.conflict_areas)
+        return relations
+
+    def _junction_relations(self, movements: list[Movement]) -> tuple[dict, dict]:
+        """Relations and conflict areas of ``movements`` (one junction's): the bodies swept along
+        their paths through the merging zone (:func:`~nrtraffic.planning.conflicts.classify`)."""
         geo = []
-        for m in self.paths.values():
+        for m in movements:
             sel = (m.path.s >= m.s_merge) & (m.path.s <= m.s_exit)
             # the path carries the centre of gravity; the body's centre is ahead of it by this [m],
             # along the body's heading, which lies between its two ends (_body_headings): both are
@@ -646,8 +723,7 @@ class Engine:
                                             m.path.s[sel] - m.s_merge, np.arctan2(chord[:, 1], chord[:, 0])))
         p, clearance = self.params, self.sc.junction.lateral_clearance_m
         relations = classify(geo, p.length, p.width, clearance)
-        self.conflict_areas = conflict_areas(geo, relations, p.length, p.width, clearance)
-        return relations
+        return relations, conflict_areas(geo, relations, p.length, p.width, clearance)
 
     def write_demand(self, path: Path) -> list[tuple]:
         """The run's departures (:meth:`_demand`) as a SUMO route file, in nrtraffic's vehicle
@@ -661,7 +737,9 @@ class Engine:
             h = self.sc.human
             types.append(VehicleType("human", p.length, p.width, h.min_gap_m, h.accel_mps2, h.decel_mps2, v_max,
                                      h.sigma, h.tau_s, h.speed_dev, h.car_follow_model))
-        write_routes(path, types, {k: v[2] for k, v in self.movement_table.items()}, demand)
+        routes = {k: v[2] for k, v in self.movement_table.items()}
+        routes.update({k: self._route_edges(k) for k in self.itineraries})
+        write_routes(path, types, routes, demand)
         return demand
 
     # ------------------------------------------------------------------ run
@@ -706,8 +784,8 @@ class Engine:
                 except ValueError as exc:  # the junction or its zones do not suit: nothing was run
                     raise NetworkError(f"{self.sc.general.name}: {exc}") from None
                 self._write_movements()
-                self.coord = Coordinator(self.sc.coordinator, self.sc.planning, self.relations,
-                                         areas=self.conflict_areas)
+                for j in self.junctions.values():
+                    j.coord = Coordinator(self.sc.coordinator, self.sc.planning, j.relations, areas=j.conflict_areas)
                 self._loop()
         except NetworkError:
             if self.traj is not None:
@@ -740,11 +818,10 @@ class Engine:
         self.starting: list[str] = []  # controlled vehicles standing at the stop line, their start reserved
         self.unreserved: dict[str, list[str]] = {}  # approach -> its human drivers not yet reserved, in order
         self._alloc(0)
-        approaching: list[str] = []
+        self.approaching: list[str] = []  # controlled vehicles SUMO drives towards their next control zone
+        approaching = self.approaching
         scripted: list[str] = []
         batch = self.sc.coordinator.policy == "batch"
-        self.pending: list[str] = []  # "batch": vehicles in the control zone waiting for their batch to close
-        self.batch_closes = math.inf
         step = 0
         total = self.duration if self.duration > 0 else None
         fmt = ("{l_bar}{bar}| {n:.0f}/{total:.0f} sim s [{elapsed}<{remaining}]" if total
@@ -927,25 +1004,63 @@ class Engine:
         """The record of a vehicle SUMO has just inserted (None for one not of the demand)."""
         if vid not in self._scheduled:
             return None
-        route, t, speed = self._scheduled.pop(vid)
+        trip, t, speed = self._scheduled.pop(vid)
         lv = self._listed.get(vid)
         human = vid in self._humans
-        lanes = self.lane_movements[route]
-        if len(lanes) > 1:
+        legs = self.itineraries.get(trip, (trip,))
+        if any(len(self.lane_movements[leg]) > 1 for leg in legs):
             # SUMO inserted it on the least occupied lane its route can take (departLane="best"); it
             # keeps that lane, which decides its lane-level movement
-            here = self.sumo.lane_position(vid)[0]
             self.sumo.keep_lane(vid)
-            lane, mv = next(((ln, name) for ln, name, _, _ in lanes if ln == here), lanes[0][:2])
-        else:
-            lane, mv = lanes[0][:2]
+        lane, mv = self._lane_movement(vid, legs[0])
         rec = self.records[vid] = VehicleRecord(
-            vid, self.movement_table[route][0], t, movement=mv, route=route, lane=lane, v_free=speed,
+            vid, self.movement_table[legs[0]][0], t, movement=mv, route=legs[0], lane=lane, v_free=speed,
             controlled=(lv.controlled if lv else True) and self.control and not human,
             driver="human" if human else "automated",
             heading_offset=lv.entry_heading_offset_rad if lv else 0.0,
-            speed_profile=lv.speed_profile if lv else ())
+            speed_profile=lv.speed_profile if lv else (), junction=self.movement_junction[legs[0]], legs=legs)
         return rec
+
+    def _lane_movement(self, vid: str, route: str) -> tuple[str, str]:
+        """``(entry lane, lane-level movement)`` of a vehicle on turning movement ``route``: the
+        one of the lane SUMO has it on (the first where it is on none of them yet)."""
+        lanes = self.lane_movements[route]
+        if len(lanes) == 1:
+            return lanes[0][:2]
+        here = self.sumo.lane_position(vid)[0]
+        return next(((ln, name) for ln, name, _, _ in lanes if ln == here), lanes[0][:2])
+
+    def _next_leg(self, vid: str) -> bool:
+        """A vehicle that left a junction's merging zone with a next junction on its trip (a
+        corridor): its crossing is kept (:attr:`crossings`) and a new record starts for the next
+        one, which that junction admits when the vehicle enters its control zone (SUMO drives it
+        until then; a human driver is told to stop at that junction's stop line). False when the
+        trip has no next junction."""
+        rec = self.records[vid]
+        if rec.leg + 1 >= len(rec.legs):
+            return False
+        self.crossings.append(rec)
+        route = rec.legs[rec.leg + 1]
+        lane, mv = self._lane_movement(vid, route)
+        new = self.records[vid] = VehicleRecord(
+            vid, self.movement_table[route][0], rec.t_depart, movement=mv, route=route, lane=lane, v_free=rec.v_free,
+            controlled=rec.controlled, driver=rec.driver, speed_profile=rec.speed_profile,
+            junction=self.movement_junction[route], legs=rec.legs, leg=rec.leg + 1)
+        if new.controlled:
+            new.status = "approaching"
+            self.sumo.colour(vid, "approaching")
+            self.approaching.append(vid)
+        elif new.driver == "human" and self.control:
+            new.status = "human"
+            self.reservations.pop(vid, None)
+            self.sumo.stop_at(vid, *self.stop_line[new.movement, new.driver])
+            self.sumo.colour(vid, "human")
+            if vid not in self.humans:
+                self.humans.append(vid)
+            self.unreserved.setdefault(new.lane, []).append(vid)
+        else:
+            new.status = "sumo"
+        return True
 
     def _request(self, vid: str, entry_only: bool = False):
         """What a vehicle whose centre of gravity crossed the control-zone entry asks of the
@@ -990,7 +1105,7 @@ class Engine:
         try:
             if req.D <= 0.5:
                 raise ScheduleInfeasible(f"vehicle {vid} is already at the merging zone")
-            asg = self.coord.schedule_request(req)
+            asg = self.junctions[self.records[vid].junction].coord.schedule_request(req)
         except ScheduleInfeasible:
             self._hold(vid)
             return "held"
@@ -1006,21 +1121,29 @@ class Engine:
         for vid in list(approaching):
             if self._request(vid, entry_only=True):
                 approaching.remove(vid)
-                if not self.pending:
-                    self.batch_closes = self.t + self.sc.coordinator.batch_window_s
-                self.pending.append(vid)
+                j = self.junctions[self.records[vid].junction]
+                if not j.pending:
+                    j.batch_closes = self.t + self.sc.coordinator.batch_window_s
+                j.pending.append(vid)
                 self.sumo.colour(vid, "pending")
+        for j in self.junctions.values():
+            self._close_batch(j, dt)
+        self._account_waiting(self.starting, dt)
+
+    def _close_batch(self, j: Junction, dt: float) -> None:
+        """Junction ``j``'s batch: its waiting vehicles accounted for, and all scheduled together
+        when the batch closes (:meth:`_admit_batch`)."""
         # behind a human: checked each step, until its start is reserved (then it leaves the batch)
-        waiting = {vid for vid in self.pending if self._hindered(vid)}
-        self.pending = [v for v in self.pending if self.records[v].status != "starting"]
-        for vid in self.pending:
+        waiting = {vid for vid in j.pending if self._hindered(vid)}
+        j.pending = [v for v in j.pending if self.records[v].status != "starting"]
+        for vid in j.pending:
             if self.records[vid].status == "held":
                 self.records[vid].t_held += dt
-        self._account_waiting(self.pending + self.starting, dt)
-        if not self.pending or self.t < self.batch_closes - 1e-9:
+        self._account_waiting(j.pending, dt)
+        if not j.pending or self.t < j.batch_closes - 1e-9:
             return
         got = {}
-        for vid in self.pending:
+        for vid in j.pending:
             if vid in waiting:  # waits for a human ahead, or for its stop at the stop line
                 continue
             g = self._request(vid)
@@ -1028,15 +1151,15 @@ class Engine:
                 got[vid] = g
             else:
                 self._hold(vid)  # at the zone already, or no longer seen on its path
-        results = self.coord.schedule_batch([got[v][0] for v in self.pending if v in got])
+        results = j.coord.schedule_batch([got[v][0] for v in j.pending if v in got])
         held = [req.vehicle_id for req, a in results if isinstance(a, ScheduleInfeasible)]
         for req, a in results:
             if not isinstance(a, ScheduleInfeasible):
                 self._admit(got[req.vehicle_id], a)
         for vid in held:
             self._hold(vid)
-        self.pending = [v for v in self.pending if v in held or v not in got]
-        self.batch_closes = self.t + self.sc.coordinator.batch_window_s if self.pending else math.inf
+        j.pending = [v for v in j.pending if v in held or v not in got]
+        j.batch_closes = self.t + self.sc.coordinator.batch_window_s if j.pending else math.inf
 
     def _account_waiting(self, vids: list[str], dt: float) -> None:
         """Energy and fuel of vehicles in the control zone that SUMO still drives (waiting for their
@@ -1112,6 +1235,9 @@ class Engine:
                     rec.t_merge_actual = self.t - dt + dt * (mv.s_merge - s_prev) / (s_new - s_prev)
                 if math.isnan(rec.t_exit) and s_new >= mv.s_exit > s_prev:
                     rec.t_exit = self.t - dt + dt * (mv.s_exit - s_prev) / (s_new - s_prev)
+                    rec.s_last = s_new
+                    if self._next_leg(vid):  # (a corridor: on to the next junction)
+                        continue
             if not math.isnan(rec.t_enter) and math.isnan(rec.t_exit):
                 acc = rec.acc
                 acc[kb.ACC_ENERGY] += 0.5 * a * a * dt
@@ -1269,7 +1395,7 @@ class Engine:
         areas = {other: (mv.s_merge + lo - s_cg, mv.s_merge + hi - s_cg)
                  for other, (lo, hi) in self._areas_of(rec).items()}
         offsets, merge_w, exit_w, v_exit = human_crossing(bounds, areas, mv.s_merge - s_cg, mv.s_exit - s_cg)
-        asg = self.coord.reserve_crossing(vid, rec.lane, self._body(rec), self.t, offsets, merge_w, exit_w,
+        asg = self.junctions[rec.junction].coord.reserve_crossing(vid, rec.lane, self._body(rec), self.t, offsets, merge_w, exit_w,
                                           v_exit)
         rec.t_release = asg.t_release
         rec.t_merge_planned, rec.v_merge_planned = asg.t_merge, asg.profile.v_m
@@ -1464,14 +1590,15 @@ class Engine:
         for i in np.flatnonzero(gone).tolist():
             vid = ids[i]
             rec = self.records[vid]
+            rec.acc = self.acc[i].copy()
             if done[i]:
                 self.sumo.release(vid)
                 rec.status = "released"
                 self.sumo.colour(vid, "released")
-                self.released.append(vid)
+                if not self._next_leg(vid):  # (a corridor: on to the next junction)
+                    self.released.append(vid)
             else:
                 rec.status = "lost"
-            rec.acc = self.acc[i].copy()
         self._remove(~gone)
 
     def _script(self, scripted: list[str], t_next: float) -> None:
@@ -1488,19 +1615,76 @@ class Engine:
 
     # ------------------------------------------------------------------ results
     def _tripinfo(self, final: bool = True) -> dict[str, tuple[float, float]]:
-        """Per finished trip, SUMO's own timeLoss [s] and number of stops (``waitingCount``: times
-        its speed fell below 0.1 m/s) from tripinfo.xml; nothing while SUMO still writes it
-        (``final`` false)."""
+        """Per finished trip, SUMO's own timeLoss [s], number of stops (``waitingCount``: times
+        its speed fell below 0.1 m/s) and travel time (``duration``) [s] from tripinfo.xml; nothing
+        while SUMO still writes it (``final`` false)."""
         path = self.workdir / "tripinfo.xml"
         if not final or not self.sc.outputs.sumo_tripinfo or not path.is_file():
             return {}
         import xml.etree.ElementTree as ET
 
         try:
-            return {t.get("id"): (float(t.get("timeLoss")), float(t.get("waitingCount")))
+            return {t.get("id"): (float(t.get("timeLoss")), float(t.get("waitingCount")), float(t.get("duration")))
                     for t in ET.parse(path).getroot().iter("tripinfo")}
         except ET.ParseError:  # a run that stopped early may leave it unterminated
             return {}
+
+    @staticmethod
+    def _trips(veh: pd.DataFrame) -> pd.DataFrame:
+        """One row per trip: ``veh`` itself when every vehicle crosses one junction; on a corridor,
+        a vehicle's crossings added up (delay, energy, fuel), its first crossing's arrival and
+        wait to enter, and its last crossing's exit (NaN, as is the delay, until it has crossed
+        every junction of its trip)."""
+        if veh.empty or (veh["legs"] <= 1).all():
+            return veh
+        out = veh.drop_duplicates("vehicle_id", keep="first").set_index("vehicle_id")
+        last = veh.drop_duplicates("vehicle_id", keep="last").set_index("vehicle_id")
+        complete = (last["leg"] == last["legs"] - 1) & last["t_exit_s"].notna()
+        out["t_exit_s"] = last["t_exit_s"].where(complete)
+        sums = veh.groupby("vehicle_id", sort=False)[["delay_s", "energy_u2", "fuel_ml"]].sum(min_count=1)
+        out["delay_s"] = sums["delay_s"].where(complete)
+        out["energy_u2"], out["fuel_ml"] = sums["energy_u2"], sums["fuel_ml"]
+        return out.reset_index()[veh.columns]
+
+    def _corridor_table(self, veh: pd.DataFrame, trips: dict, w0: float, w1: float) -> dict:
+        """summary.json ``corridor`` (several junctions): the trips straight through every
+        controlled junction, per road they enter by (a direction of the arterial), that entered
+        their first control zone in the window and left the network: how many, their mean travel
+        time (SUMO's tripinfo duration, from insertion to arrival, plus the wait to be inserted)
+        [s], stops per vehicle (SUMO's waitingCount) and delay (the crossings' delays added up)
+        [s]."""
+        if len(getattr(self, "junctions", {})) < 2 or veh.empty:
+            return {}
+        n = len(self.junctions)
+        g = veh.groupby("vehicle_id", sort=False)
+        through = g["movement"].agg(lambda m: bool((m == "straight").all())) & (g["leg"].count() == n)
+        first = veh.drop_duplicates("vehicle_id").set_index("vehicle_id")
+        ok = through & first["t_arrive_s"].between(w0, w1) & first.index.isin(list(trips))
+        delay = g["delay_s"].sum(min_count=n)
+        out = {}
+        for appr in sorted(set(first.loc[ok[ok].index, "approach"])):
+            ids = [v for v in ok[ok].index if first.at[v, "approach"] == appr]
+            tt = [trips[v][2] + first.at[v, "depart_delay_s"] for v in ids]
+            out[appr] = {"vehicles": len(ids), "travel_time_s": float(np.mean(tt)),
+                         "stops_per_vehicle": float(np.mean([trips[v][1] for v in ids])),
+                         "delay_s": metrics.mean_or_none(delay[ids])}
+        return out
+
+    def _junction_table(self, veh: pd.DataFrame, w0: float, w1: float) -> dict:
+        """summary.json ``junctions``: per controlled junction, the crossings that entered its
+        control zone in the window and left its merging zone: how many, their throughput [veh/h],
+        mean and 95th-percentile delay [s] and the HCM letter, and the control zone cuts."""
+        out = {}
+        hours = max(w1 - w0, 0.0) / 3600.0
+        for jid, j in getattr(self, "junctions", {}).items():
+            g = veh[(veh["junction"] == jid) & veh["t_arrive_s"].between(w0, w1) & veh["t_exit_s"].notna()]
+            mean = metrics.mean_or_none(g["delay_s"])
+            out[jid] = {"vehicles": int(len(g)), "throughput_veh_h": len(g) / hours if hours > 0 else None,
+                        "mean_delay_s": mean, "p95_delay_s": metrics.percentile_or_none(g["delay_s"], 95),
+                        "los": (metrics.level_of_service(mean, metrics.is_signalised(self.label))
+                                if mean is not None else None),
+                        "control_zone_m": j.control_zone_m, "merging_zone_m": j.merging_zone_m}
+        return out
 
     def _driver_figures(self, adm: pd.DataFrame, done: pd.DataFrame) -> dict:
         """Figures split by driver (``demand.controlled_share``): the share of human drivers among
@@ -1529,7 +1713,8 @@ class Engine:
         rows = []
         paths = getattr(self, "paths", {})
         trips = self._tripinfo(final)
-        for rec in sorted(self.records.values(), key=lambda r: r.t_depart):  # in order of departure
+        # in order of departure (a corridor trip's crossings in order)
+        for rec in sorted(self.crossings + list(self.records.values()), key=lambda r: (r.t_depart, r.leg)):
             if rec.status == "waiting" or (self.control and not rec.controlled and rec.driver != "human"):
                 continue  # (a SUMO-driven vehicle of the scenario's own, e.g. a scripted leader)
             ap = paths.get(rec.movement)
@@ -1555,7 +1740,8 @@ class Engine:
                 return v if np.isfinite(v) else math.nan
 
             rows.append({
-                "vehicle_id": rec.vehicle_id, "approach": rec.approach, "driver": rec.driver,
+                "vehicle_id": rec.vehicle_id, "junction": rec.junction, "leg": rec.leg, "legs": len(rec.legs) or 1,
+                "approach": rec.approach, "driver": rec.driver,
                 "movement": ap.turn if ap is not None else "", "lane": rec.lane,
                 "t_arrive_s": rec.t_enter if math.isnan(rec.t_arrive) else rec.t_arrive,
                 "depart_delay_s": rec.depart_delay,
@@ -1585,13 +1771,15 @@ class Engine:
         # the measurement window: vehicles that entered the control zone inside it
         inside = veh["t_arrive_s"].between(w0, w1)
         adm_all = veh[veh["t_enter_s"].notna() & inside]
-        done = veh[veh["t_exit_s"].notna() & inside]
+        # the trips (a corridor: a vehicle's crossings added up; one junction: its crossing)
+        trip = self._trips(veh)
+        done = trip[trip["t_exit_s"].notna() & trip["t_arrive_s"].between(w0, w1)]
         # the vehicles' own figures (tracking, barriers, gaps) are the automated vehicles'; human
         # drivers have theirs apart (by_driver)
         adm = adm_all[adm_all["driver"] == "automated"]
         steps = adm["plant_steps"].sum()
         window = max(w1 - w0, 0.0)
-        exits = int(veh["t_exit_s"].between(w0, w1).sum())
+        exits = int(trip["t_exit_s"].between(w0, w1).sum())
         throughput = exits / window * 3600.0 if window > 0 else None
         demand = self.demand_veh_h(w0, w1) if window > 0 and hasattr(self, "movement_table") else 0.0
         # demand not yet in the network at the end: due to depart, but SUMO could not insert it
@@ -1616,6 +1804,8 @@ class Engine:
             "demand_veh_h": demand or None,
             "served_share": throughput / demand if demand and throughput is not None else None,
             "control_zones_cut_m": {k: round(v, 3) for k, v in self.zone_cuts.items()},
+            "junctions": self._junction_table(veh, w0, w1),
+            "corridor": self._corridor_table(veh, trips, w0, w1),
             "vehicles_waiting_to_enter": len(due),
             "mean_wait_to_enter_s": float(np.mean([sim_t - t for t in due])) if due else None,
             "mean_depart_delay_s": metrics.mean_or_none(done["depart_delay_s"]),
@@ -1648,12 +1838,13 @@ class Engine:
             "cbf_lat_fallbacks": int(adm["cbf_lat_fallbacks"].sum()) if controlled else None,
             **self._driver_figures(adm_all, done),
             "wall_time_breakdown_s": {**self.wall_breakdown,
-                                      "qp": getattr(getattr(self, "coord", None), "qp_wall_s", 0.0)},
+                                      "qp": sum(j.coord.qp_wall_s for j in getattr(self, "junctions", {}).values()
+                                                if j.coord is not None)},
             "nrtraffic_version": __version__,
             "sumo_version": sumo_version(),
         }
         extra = {}
-        if final and self.sc.junction.id and hasattr(self, "movement_table"):
+        if final and self.sc.controlled_junctions() and hasattr(self, "movement_table"):
             extra["approaches"] = self.approach_table(veh, w0, w1)
             extra["queues"] = self.queue_series()
         return RunResult(summary, veh, self.workdir, extra)

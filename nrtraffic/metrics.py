@@ -47,8 +47,9 @@ LOS_UNSIGNALISED = (10.0, 15.0, 25.0, 35.0, 50.0)
 
 def is_signalised(control: str) -> bool:
     """Whether a run's control (summary.json ``control``) is judged by the signalised HCM
-    thresholds: SUMO's traffic light; nrtraffic and the unsignalised baselines are not."""
-    return control == "traffic_light"
+    thresholds: SUMO's traffic lights (a run's ``sumo_traffic_light``, a sweep's ``traffic_light``,
+    coordinated or not); nrtraffic and the unsignalised baselines are not."""
+    return str(control).removeprefix("sumo_") in ("traffic_light", "traffic_light_coordinated")
 
 
 def level_of_service(delay_s: float, signalised: bool) -> str:

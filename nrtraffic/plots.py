@@ -144,12 +144,18 @@ def conflict_areas(movements: dict, path: Path) -> Path:
     rows = math.ceil(len(names) / cols)
     fig, axes = plt.subplots(rows, cols, figsize=(3.0 * cols, 3.0 * rows), squeeze=False)
     paths = {n: np.asarray(mvs[n]["zone_path"]) for n in names}
-    allxy = np.vstack([p[:, 1:] for p in paths.values()])
-    centre = 0.5 * (allxy.min(axis=0) + allxy.max(axis=0))
-    half = 0.5 * (allxy.max(axis=0) - allxy.min(axis=0)).max() + 2.0
-    zone = movements.get("merging_zone")
+    # several junctions (a corridor): each panel shows its own junction
+    junction = {n: mvs[n].get("junction", "") for n in names}
+    zones = movements.get("merging_zones") or {"": movements.get("merging_zone")}
+    frame = {}
+    for j in set(junction.values()):
+        allxy = np.vstack([paths[n][:, 1:] for n in names if junction[n] == j])
+        frame[j] = (0.5 * (allxy.min(axis=0) + allxy.max(axis=0)),
+                    0.5 * (allxy.max(axis=0) - allxy.min(axis=0)).max() + 2.0)
     for ax, n in zip(axes.flat, names):
-        for other in names:
+        centre, half = frame[junction[n]]
+        zone = zones.get(junction[n])
+        for other in (o for o in names if junction[o] == junction[n]):
             q = paths[other]
             ax.plot(q[:, 1], q[:, 2], color="0.85", lw=0.8, zorder=1)
         for a in areas.get(n, []):
@@ -169,7 +175,7 @@ def conflict_areas(movements: dict, path: Path) -> Path:
         ax.set_aspect("equal")
         ax.set_xticks([])
         ax.set_yticks([])
-        ax.set_title(f"{n}: {len(areas.get(n, []))} areas", fontsize=8)
+        ax.set_title(f"{junction[n] + ' ' if junction[n] else ''}{n}: {len(areas.get(n, []))} areas", fontsize=8)
     for ax in list(axes.flat)[len(names):]:
         ax.axis("off")
     fig.suptitle("conflict areas (red) on each movement's path; grey: the movements it conflicts with", fontsize=9)

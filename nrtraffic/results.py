@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 VEHICLE_COLUMNS = [
-    "vehicle_id", "approach", "driver", "movement", "lane", "depart_delay_s", "t_arrive_s", "t_enter_s", "v_enter_mps", "t_merge_planned_s", "t_merge_actual_s",
+    "vehicle_id", "junction", "leg", "legs", "approach", "driver", "movement", "lane", "depart_delay_s", "t_arrive_s", "t_enter_s", "v_enter_mps", "t_merge_planned_s", "t_merge_actual_s",
     "t_exit_s", "delay_s", "max_tracking_error_m", "steady_tracking_error_m", "transient_tracking_error_m",
     "max_lateral_dev_m",
     "min_bumper_gap_m", "energy_u2", "fuel_ml", "predecessor", "relation", "binding", "profile", "plan_rear_end_intrusion_m",

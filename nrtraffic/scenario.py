@@ -332,6 +332,26 @@ class Junction:
 
 
 @dataclass(frozen=True)
+class JunctionSpec:
+    """``[[junctions]]``: one SUMO junction of the network to control, with its own control zone,
+    merging zone and coordinator (a corridor lists several; ``[junction] id`` is the one-junction
+    shorthand). A vehicle leaving one junction's merging zone is handed to SUMO, and the next
+    junction on its route admits it when it enters that junction's control zone; a control zone
+    reaching back past the upstream junction's merging zone is cut there (summary.json
+    ``control_zones_cut_m``)."""
+
+    id: str = ""  # id of the SUMO junction (required)
+    control_zone_m: float = 0.0  # its control zone [m]; 0: zones.control_zone_m
+    merging_zone_m: float = 0.0  # diameter of its merging zone [m]; 0: zones.merging_zone_m
+
+    def validate(self) -> None:
+        if not self.id:
+            raise ScenarioError("every [[junctions]] entry needs an id (a junction of the network)")
+        if self.control_zone_m < 0 or self.merging_zone_m < 0:
+            raise ScenarioError(f"junctions.{self.id}: control_zone_m and merging_zone_m must be >= 0 (0: [zones])")
+
+
+@dataclass(frozen=True)
 class Barriers:
     """``[barriers]``: the safety filter between tracker and plant (paper s. 3.2 and 4.2).
 
@@ -492,11 +512,20 @@ class Scenario:
     outputs: Outputs
     approaches: tuple[Approach, ...]
     vehicles: tuple[ListedVehicle, ...]
+    junctions: tuple[JunctionSpec, ...]
     base_dir: Path
 
     @property
     def network_path(self) -> Path:
         return (self.base_dir / self.general.network).resolve()
+
+    def controlled_junctions(self) -> tuple[JunctionSpec, ...]:
+        """The junctions to control, zones resolved: ``[[junctions]]``, or ``[junction] id``
+        (none on a plain road of ``[[approaches]]``)."""
+        z = self.zones
+        specs = self.junctions or ((JunctionSpec(self.junction.id),) if self.junction.id else ())
+        return tuple(JunctionSpec(j.id, j.control_zone_m or z.control_zone_m, j.merging_zone_m or z.merging_zone_m)
+                     for j in specs)
 
     def to_dict(self) -> dict[str, Any]:
         """The full configuration as a TOML-ready dict (every default made explicit)."""
@@ -515,6 +544,8 @@ class Scenario:
             return {f.name: _plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
 
         out["approaches"] = [table(a) for a in self.approaches]
+        if self.junctions:
+            out["junctions"] = [table(j) for j in self.junctions]
         if self.vehicles:
             out["vehicles"] = [table(v) for v in self.vehicles]
         return out
@@ -620,15 +651,27 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
         if section not in _SECTIONS:
             raise ScenarioError(f"--set {ov!r}: unknown section {section!r}")
         data.setdefault(section, {})[key] = value
-    unknown = set(data) - set(_SECTIONS) - {"approaches", "vehicles"}
+    unknown = set(data) - set(_SECTIONS) - {"approaches", "vehicles", "junctions"}
     if unknown:
         raise ScenarioError(
-            f"unknown section(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(list(_SECTIONS) + ['approaches', 'vehicles']))}"
+            f"unknown section(s) {', '.join(sorted(unknown))}; known: "
+            f"{', '.join(sorted(list(_SECTIONS) + ['approaches', 'vehicles', 'junctions']))}"
         )
     parts = {_ATTR[k]: _section(k, cls, data.get(k, {})) for k, cls in _SECTIONS.items()}
+    jl = data.get("junctions", [])
+    if not isinstance(jl, list):
+        raise ScenarioError("[[junctions]] must be an array of tables")
+    junctions = tuple(_section("junctions", JunctionSpec, j) for j in jl)
+    jids = [j.id for j in junctions]
+    if len(set(jids)) != len(jids):
+        raise ScenarioError(f"[[junctions]] ids must be unique, got {jids}")
+    if junctions and parts["junction"].id:
+        raise ScenarioError("give the junctions to control either as [junction] id or as [[junctions]], not both")
     appr = data.get("approaches", [])
-    if not isinstance(appr, list) or (not appr and not parts["junction"].id):
-        raise ScenarioError("a scenario needs [junction] id or at least one [[approaches]] entry")
+    if not isinstance(appr, list) or (not appr and not parts["junction"].id and not junctions):
+        raise ScenarioError("a scenario needs [junction] id, [[junctions]] or at least one [[approaches]] entry")
+    if appr and junctions:
+        raise ScenarioError("[[approaches]] (a plain road) and [[junctions]] do not go together")
     approaches = tuple(_section("approaches", Approach, a) for a in appr)
     names = [a.name for a in approaches]
     if len(set(names)) != len(names):
@@ -638,19 +681,21 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
         raise ScenarioError("[[vehicles]] must be an array of tables")
     vehicles = tuple(_section("vehicles", ListedVehicle, v) for v in listed)
     for v in vehicles:
-        if v.approach not in names and not parts["junction"].id:
+        if v.approach not in names and not parts["junction"].id and not junctions:
             raise ScenarioError(f"vehicles.{v.id}.approach {v.approach!r} is not an approach ({', '.join(names)})")
     ids = [v.id for v in vehicles]
     if len(set(ids)) != len(ids):
         raise ScenarioError(f"[[vehicles]] ids must be unique, got {ids}")
-    sc = Scenario(approaches=approaches, vehicles=vehicles, base_dir=Path(base_dir).resolve(), **parts)
+    sc = Scenario(approaches=approaches, vehicles=vehicles, junctions=junctions, base_dir=Path(base_dir).resolve(),
+                  **parts)
     if not allow_outside and not sc.network_path.is_relative_to(sc.base_dir):
         raise ScenarioError(f"scenario.network = {sc.general.network!r} lies outside the scenario's folder "
                             f"{sc.base_dir} (allowed only with --allow-outside)")
     if sc.demand.sumo_routes:
         routes = (sc.base_dir / sc.demand.sumo_routes).resolve()
         if not sc.junction.id:
-            raise ScenarioError("demand.sumo_routes needs a [junction] (its vehicles are mapped to its movements)")
+            raise ScenarioError("demand.sumo_routes needs a [junction] id (its vehicles are mapped to its movements; "
+                                "not [[junctions]])")
         if not allow_outside and not routes.is_relative_to(sc.base_dir):
             raise ScenarioError(f"demand.sumo_routes = {sc.demand.sumo_routes!r} lies outside the scenario's folder "
                                 f"{sc.base_dir} (allowed only with --allow-outside)")
@@ -659,7 +704,7 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
         if sc.demand.flows or sc.demand.rate_veh_h > 0:
             raise ScenarioError("demand.sumo_routes replaces demand.flows and demand.rate_veh_h: give one of them")
     if sc.demand.controlled_share < 1.0:
-        if not sc.junction.id:
+        if not sc.controlled_junctions():
             raise ScenarioError("demand.controlled_share < 1 needs a [junction] (human drivers stop at its "
                                 "merging-zone entry)")
         if sc.coordinator.conflict_model != "conflict_points":

@@ -109,6 +109,7 @@ def json_schema() -> dict:
             sections[name] = _table(cls)
     sections["approaches"] = {"type": "array", "items": _table(S.Approach)}
     sections["vehicles"] = {"type": "array", "items": _table(S.ListedVehicle)}
+    sections["junctions"] = {"type": "array", "items": _table(S.JunctionSpec)}
     return {
         "$schema": "https://json-schema.org/draft/2020-12/schema",
         "$id": SCHEMA_ID,

@@ -17,7 +17,7 @@ def check(sc: scenario_mod.Scenario) -> None:
     """What can be checked before SUMO starts: the network is a SUMO network with the junction and
     the edges the scenario names, and ``sumo.extra_args`` are SUMO options (NetworkError)."""
     edges = tuple(e for a in sc.approaches for e in (*a.route, a.merge_entry_edge))
-    check_scenario(sc.network_path, sc.junction.id, edges)
+    check_scenario(sc.network_path, [j.id for j in sc.controlled_junctions()], edges)
     check_sumo_args(tuple(sc.sumo.extra_args))
 
 

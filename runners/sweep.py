@@ -155,7 +155,7 @@ def plan(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]]
         ov = tuple(overrides) + tuple(f"{k}={v}" for k, v in point)
         sc = scenario.load(scenario_path, list(ov), allow_outside=allow_outside)
         check(sc)
-        if any(c != NRTRAFFIC for c in controls) and not sc.junction.id:
+        if any(c != NRTRAFFIC for c in controls) and not sc.controlled_junctions():
             raise SweepError("--baseline needs a scenario with a [junction]")
         config = sc.to_dict()
         for seed in seeds:

@@ -1,5 +1,5 @@
 """Regenerate the plain XML and networks of the junction scenarios (cross4, cross4_2lane, tee3,
-cross4_curved), and convert the hand-drawn station_mill.
+cross4_curved, corridor3), and convert the hand-drawn station_mill.
 
 Every arm is one lane each way (cross4_2lane: two lanes out, and in two lanes and a left-turn
 lane, with the lane use of ``net.con.xml``), 520 m long, 50 km/h (13.89 m/s); the junction node "C" is at the
@@ -92,6 +92,41 @@ def two_lane_connections(arms: list[str]) -> str:
     return "".join(out)
 
 
+# corridor3: an arterial west-east through J1, J2 and J3 (280 m and 380 m apart), a side street
+# north and south at each; the arterial has the higher priority (SUMO's priority baseline)
+CORRIDOR_J = {"J1": 0.0, "J2": 280.0, "J3": 660.0}  # x of the junctions [m]
+CORRIDOR_ENDS = 450.0  # length of the arterial beyond J1 and J3 [m]
+CORRIDOR_SIDE = {"J1": (350.0, 350.0), "J2": (360.0, 340.0), "J3": (350.0, 370.0)}  # north, south arm [m]
+
+
+def corridor3() -> None:
+    d = HERE / "corridor3"
+    d.mkdir(exist_ok=True)
+    xs = CORRIDOR_J
+    nodes = [f'    <node id="{j}" x="{x:.1f}" y="0.0" type="priority"/>' for j, x in xs.items()]
+    nodes += [f'    <node id="W" x="{-CORRIDOR_ENDS:.1f}" y="0.0" type="priority"/>',
+              f'    <node id="E" x="{xs["J3"] + CORRIDOR_ENDS:.1f}" y="0.0" type="priority"/>']
+    edges = []
+
+    def both(a, b, prio):
+        for f, t in ((a, b), (b, a)):
+            edges.append(f'    <edge id="{f}_{t}" from="{f}" to="{t}" numLanes="1" speed="{SPEED}" priority="{prio}"/>')
+
+    chain = ["W", *xs, "E"]
+    for a, b in zip(chain, chain[1:]):
+        both(a, b, 3)
+    for k, (j, x) in enumerate(xs.items(), start=1):
+        north, south = CORRIDOR_SIDE[j]
+        nodes.append(f'    <node id="N{k}" x="{x:.1f}" y="{north:.1f}" type="priority"/>')
+        nodes.append(f'    <node id="S{k}" x="{x:.1f}" y="{-south:.1f}" type="priority"/>')
+        both(f"N{k}", j, 1)
+        both(f"S{k}", j, 1)
+    (d / "net.nod.xml").write_text("<nodes>\n" + "\n".join(nodes) + "\n</nodes>\n")
+    (d / "net.edg.xml").write_text("<edges>\n" + "\n".join(edges) + "\n</edges>\n")
+    build_network(d / "net.nod.xml", d / "net.edg.xml", d / "net.net.xml")
+    write_view("corridor3")
+
+
 def station_mill() -> None:
     """station_mill is drawn by hand (its plain XML is the source, not written here): only
     converted, with netconvert's options of ``station_mill/README.md``."""
@@ -109,6 +144,7 @@ def main() -> None:
     arc = _arc_points()
     curved = dict(four, N=arc[-1])
     write("cross4_curved", curved, shapes={"N": arc})
+    corridor3()
     station_mill()
 
 

@@ -65,17 +65,22 @@ def build_network(nodes: Path, edges: Path, output: Path, extra_args: list[str] 
     return output
 
 
-JUNCTION_TYPES = ("traffic_light", "priority", "allway_stop", "right_before_left")
+# SUMO's junction controls the baselines rebuild a network with; "traffic_light_coordinated" is
+# "traffic_light" at every junction with offsets for green waves (runners/baseline.py)
+JUNCTION_TYPES = ("traffic_light", "traffic_light_coordinated", "priority", "allway_stop", "right_before_left")
 
 
-def with_junction_type(net: Path, junction_id: str, junction_type: str, output: Path) -> Path:
-    """A copy of ``net`` whose junction ``junction_id`` has SUMO's ``junction_type`` (the baselines:
-    traffic_light, priority, allway_stop, right_before_left). Round trip through plain XML."""
+def with_junction_type(net: Path, junction_ids, junction_type: str, output: Path) -> Path:
+    """A copy of ``net`` whose junctions ``junction_ids`` (one id or several) have SUMO's
+    ``junction_type`` (the baselines: traffic_light, priority, allway_stop, right_before_left; a
+    coordinated traffic light is built as traffic_light). Round trip through plain XML."""
     import re
     import tempfile
 
     if junction_type not in JUNCTION_TYPES:
         raise ValueError(f"unknown junction type {junction_type!r}; use one of {', '.join(JUNCTION_TYPES)}")
+    junction_ids = (junction_ids,) if isinstance(junction_ids, str) else tuple(junction_ids)
+    node_type = "traffic_light" if junction_type == "traffic_light_coordinated" else junction_type
     with tempfile.TemporaryDirectory() as tmp:
         prefix = Path(tmp) / "plain"
         proc = subprocess.run([sumo_binary("netconvert"), "--sumo-net-file", str(net), "--plain-output-prefix",
@@ -84,15 +89,15 @@ def with_junction_type(net: Path, junction_id: str, junction_type: str, output: 
             raise SumoToolError(f"netconvert could not read {net}:\n{proc.stderr.strip()}")
         nod = Path(f"{prefix}.nod.xml")
         text = nod.read_text()
-        pat = re.compile(r'(<node id="' + re.escape(junction_id) + r'"[^>]*?type=")([^"]*)(")')
-        if not pat.search(text):
-            raise SumoToolError(f"junction {junction_id!r} not found in {net}")
-        nod.write_text(pat.sub(lambda m: m.group(1) + junction_type + m.group(3), text))
+        for junction_id in junction_ids:
+            pat = re.compile(r'(<node id="' + re.escape(junction_id) + r'"[^>]*?type=")([^"]*)(")')
+            if not pat.search(text):
+                raise SumoToolError(f"junction {junction_id!r} not found in {net}")
+            text = pat.sub(lambda m: m.group(1) + node_type + m.group(3), text)
+        nod.write_text(text)
         args = ["--node-files", str(nod), "--edge-files", f"{prefix}.edg.xml", "--connection-files",
                 f"{prefix}.con.xml", "--output-file", str(output), "--no-turnarounds", "true",
                 "--offset.disable-normalization", "true", "--no-warnings", "true", "--precision", "4"]
-        if Path(f"{prefix}.tll.xml").is_file() and junction_type == "traffic_light":
-            pass  # SUMO builds a fresh default programme for the new traffic light
         proc = subprocess.run([sumo_binary("netconvert")] + args, capture_output=True, text=True)
         if proc.returncode != 0:
             raise SumoToolError(f"netconvert failed building the {junction_type} variant:\n{proc.stderr.strip()}")

@@ -70,10 +70,24 @@ def junction_movements(net_path: Path, junction_id: str) -> tuple[list[JunctionM
     return out, (float(x), float(y))
 
 
-def check_scenario(net_path: Path, junction_id: str = "", edges: tuple[str, ...] = ()) -> None:
-    """Check, before SUMO starts, that ``net_path`` is a SUMO network holding the junction and the
-    edges a scenario names, and that the junction has movements (not a dead end); raises
-    :class:`NetworkError` naming the file and every missing id, or the unsuitable junction."""
+def edge_nodes(net_path: Path) -> dict[str, tuple[str, str]]:
+    """Every normal edge of the network: ``edge id -> (from junction, to junction)``."""
+    import xml.etree.ElementTree as ET
+
+    out = {}
+    for _, el in ET.iterparse(net_path, events=("start",)):
+        if el.tag == "edge" and el.get("function") is None:
+            out[el.get("id")] = (el.get("from"), el.get("to"))
+    return out
+
+
+def check_scenario(net_path: Path, junction_ids=(), edges: tuple[str, ...] = ()) -> None:
+    """Check, before SUMO starts, that ``net_path`` is a SUMO network holding the junctions and the
+    edges a scenario names, and that each junction has movements (not a dead end); raises
+    :class:`NetworkError` naming the file and every missing id, or the unsuitable junction.
+    ``junction_ids``: one id or several."""
+    junction_ids = (junction_ids,) if isinstance(junction_ids, str) else tuple(junction_ids)
+    junction_ids = tuple(j for j in junction_ids if j)
     import xml.etree.ElementTree as ET
 
     try:
@@ -92,15 +106,16 @@ def check_scenario(net_path: Path, junction_id: str = "", edges: tuple[str, ...]
     except OSError as exc:
         raise NetworkError(f"{net_path} cannot be read: {exc}") from None
     problems = []
-    if junction_id and junction_id not in nodes:
-        problems.append(f"junction {junction_id!r} is not in it")
+    for junction_id in junction_ids:
+        if junction_id not in nodes:
+            problems.append(f"junction {junction_id!r} is not in it")
     missing = [e for e in dict.fromkeys(edges) if e not in edge_ids]
     if missing:
         problems.append(f"edge{'s' if len(missing) > 1 else ''} {', '.join(map(repr, missing))} "
                         f"{'are' if len(missing) > 1 else 'is'} not in it")
     if problems:
         raise NetworkError(f"{net_path}: " + "; ".join(problems))
-    if junction_id:  # there, but is it a junction with movements to coordinate?
+    for junction_id in junction_ids:  # there, but is it a junction with movements to coordinate?
         try:
             junction_movements(net_path, junction_id)
         except NetworkError:

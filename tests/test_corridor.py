@@ -1,0 +1,131 @@
+"""Corridors: several junctions, each with its own zones and coordinator (corridor3). The control
+zone cut where the junction upstream hands vehicles over, the hand-over itself, and the
+corridor's figures against SUMO's own trip records."""
+
+import json
+import math
+import tomllib
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from conftest import SCENARIOS
+from nrtraffic import scenario
+from nrtraffic.sumo.network import edge_nodes
+from runners.single import run_scenario
+
+CORRIDOR = SCENARIOS / "corridor3"
+
+
+@pytest.fixture(scope="module")
+def corridor_run(tmp_path_factory):
+    sc = scenario.load(CORRIDOR / "scenario.toml", ["scenario.duration_s=240.0", "demand.end_s=150.0",
+                                                    "outputs.warmup_s=0.0"])
+    out = tmp_path_factory.mktemp("corridor3") / "run"
+    return run_scenario(sc, out), out
+
+
+def _junction_xy(name):
+    root = ET.parse(CORRIDOR / "net.net.xml").getroot()
+    el = next(j for j in root.iter("junction") if j.get("id") == name)
+    return float(el.get("x")), float(el.get("y"))
+
+
+def test_control_zone_is_cut_where_the_junction_upstream_hands_over(corridor_run):
+    """On the arterial between J1 and J2 (280 m apart, straight), J2's 300 m control zone reaches
+    back into J1's merging zone: it is cut where the path leaves J1's merging disc. On a straight
+    road that leaves the distance between the junctions less the two merging radii (closed form);
+    the links to J3 (380 m) keep their zones whole."""
+    res, out = corridor_run
+    doc = json.loads((out / "movements.json").read_text())
+    cfg = tomllib.loads((out / "scenario.resolved.toml").read_text())
+    r = cfg["zones"]["merging_zone_m"] / 2.0
+    spacing = math.dist(_junction_xy("J1"), _junction_xy("J2"))
+    cuts = res.summary["control_zones_cut_m"]
+    assert set(cuts) == {f"{a}.{t}" for a in ("J1_J2", "J2_J1") for t in ("left", "straight", "right")}
+    for name, length in cuts.items():
+        m = doc["movements"][name]
+        assert length == pytest.approx(m["merge_entry_m"] - m["control_zone_start_m"], abs=1e-3)
+        assert length == pytest.approx(spacing - 2 * r, abs=0.6), name
+    for name in ("J2_J3.straight", "J3_J2.straight", "W_J1.straight"):
+        m = doc["movements"][name]
+        assert m["merge_entry_m"] - m["control_zone_start_m"] == pytest.approx(cfg["zones"]["control_zone_m"])
+
+
+def test_vehicles_are_handed_from_one_coordinator_to_the_next(corridor_run):
+    """A trip's crossings come in the order of its route: each next junction is the one the
+    previous movement's outgoing road leads into (read from the network), its crossing starts
+    after the previous one ended, no sooner than the road between them allows at the speed limit,
+    and each junction's coordinator planned its own merge time, which the vehicle met."""
+    res, out = corridor_run
+    veh = pd.read_csv(out / "vehicles.csv")
+    nodes = edge_nodes(CORRIDOR / "net.net.xml")
+    multi = veh[veh["legs"] > 1]
+    assert multi["vehicle_id"].nunique() > 30
+    handed = 0
+    for vid, g in multi.groupby("vehicle_id"):
+        g = g.sort_values("leg")
+        assert list(g["leg"]) == list(range(len(g)))
+        for a, b in zip(g.to_dict("records"), g.to_dict("records")[1:]):
+            assert nodes[b["approach"]] == (a["junction"], b["junction"])  # the road from a's junction to b's
+            if math.isnan(a["t_exit_s"]) or math.isnan(b["t_arrive_s"]):
+                continue
+            # from a's merging zone to b's: the road between them less the two merging radii (15 m)
+            road = math.dist(_junction_xy(a["junction"]), _junction_xy(b["junction"])) - 30.0
+            assert b["t_arrive_s"] >= a["t_exit_s"] - 1e-6
+            assert b["t_merge_actual_s"] - a["t_exit_s"] >= road / 13.89 - 0.2
+            handed += 1
+    assert handed > 30
+    done = veh[veh["t_merge_actual_s"].notna()]
+    assert (done["t_merge_actual_s"] - done["t_merge_planned_s"]).abs().max() < 0.3
+    s = res.summary
+    assert s["collisions"] == 0 and s["collisions_geometric"] == 0
+    assert set(s["junctions"]) == {"J1", "J2", "J3"}
+    assert sum(j["vehicles"] for j in s["junctions"].values()) == int(veh["t_exit_s"].notna().sum())
+
+
+def test_each_junction_keeps_its_conflicting_crossings_apart(corridor_run):
+    """As on one junction (tests/test_junction.py), for every junction of the corridor: two
+    crossings of conflicting movements held their conflict area at least the margin apart."""
+    res, out = corridor_run
+    veh = pd.read_csv(out / "vehicles.csv")
+    doc = json.loads((out / "movements.json").read_text())
+    areas = {(c["movement"], c["with"]): (c["from_m"], c["to_m"]) for c in doc["conflict_areas"]}
+    margin = tomllib.loads((out / "scenario.resolved.toml").read_text())["coordinator"]["conflict_margin_s"]
+    veh["mv"] = veh["approach"] + "." + veh["movement"]
+    rows = veh[veh["t_exit_s"].notna()].to_dict("records")
+    checked = {"J1": 0, "J2": 0, "J3": 0}
+    for i, a in enumerate(rows):
+        for b in rows[i + 1:]:
+            if (a["mv"], b["mv"]) in areas:
+                assert a["junction"] == b["junction"]  # relations are within a junction only
+                (fa, ta), (fb, tb) = areas[(a["mv"], b["mv"])], areas[(b["mv"], a["mv"])]
+                va, vb = a["v_merge_planned_mps"], b["v_merge_planned_mps"]
+                a_in, a_out = a["t_merge_actual_s"] + fa / va, a["t_merge_actual_s"] + ta / va
+                b_in, b_out = b["t_merge_actual_s"] + fb / vb, b["t_merge_actual_s"] + tb / vb
+                assert max(b_in - a_out, a_in - b_out) > margin - 0.1, (a["vehicle_id"], b["vehicle_id"])
+                checked[a["junction"]] += 1
+    assert min(checked.values()) > 5
+
+
+def test_corridor_travel_time_is_sumo_trip_duration(corridor_run):
+    """summary.json ``corridor``: the trips straight along the arterial, per direction, with their
+    travel time and stops as SUMO's tripinfo records them (an independent record)."""
+    res, out = corridor_run
+    veh = pd.read_csv(out / "vehicles.csv")
+    trips = {t.get("id"): t for t in ET.parse(out / "tripinfo.xml").getroot().iter("tripinfo")}
+    through = veh.groupby("vehicle_id").filter(lambda g: len(g) == 3 and (g["movement"] == "straight").all())
+    first = through.drop_duplicates("vehicle_id").set_index("vehicle_id")
+    corridor = res.summary["corridor"]
+    assert set(corridor) == {"W_J1", "E_J3"}
+    for appr, fig in corridor.items():
+        ids = [v for v in first.index if first.at[v, "approach"] == appr and v in trips]
+        assert fig["vehicles"] == len(ids) > 3
+        tt = np.mean([float(trips[v].get("duration")) + first.at[v, "depart_delay_s"] for v in ids])
+        assert fig["travel_time_s"] == pytest.approx(tt)
+        # a signal-free arterial: no stops, and the trip takes about its length at the speed limit
+        length = np.mean([float(trips[v].get("routeLength")) for v in ids])
+        assert fig["stops_per_vehicle"] == 0.0
+        assert length / 13.89 <= fig["travel_time_s"] < length / 13.89 + 15.0
