@@ -334,6 +334,11 @@ def collect(jobs: list[Job], errors: dict[str, str] | None = None) -> pd.DataFra
             row.update(status="ok", error="")
             row.update({k: v for k, v in s.items()
                         if k not in NOT_FIGURES and (v is None or isinstance(v, (int, float)))})
+            if len(s.get("junctions") or {}) > 1:  # a corridor: per junction, and along the arterial
+                for part in ("junctions", "corridor"):
+                    for name, figs in (s.get(part) or {}).items():
+                        row.update({f"{part}:{name}:{k}": v for k, v in figs.items()
+                                    if v is None or isinstance(v, (int, float))})
         row["run_dir"] = str(Path(j.run_dir))
         rows.append(row)
     return pd.DataFrame(rows)
@@ -386,6 +391,7 @@ def write_tables(df: pd.DataFrame, out: Path, figures=sweep_figures) -> None:
         tables.append((snote, stab))
     if has_humans(df):
         tables.append(driver_table(summ, df))
+    tables += corridor_tables(summ)
     (out / "sweep.md").write_text("\n".join(markdown(n, t) for n, t in tables))
     names = figures(df, summ, out)
     from nrtraffic.report import sweep_report
@@ -467,6 +473,47 @@ def safety_table(df: pd.DataFrame) -> tuple[str, pd.DataFrame]:
                      f"{int(g['cbf_long_fallbacks'].sum())} / {int(g['cbf_lat_fallbacks'].sum())}",
                      f"{int(g['collisions'].sum())} / {int(g['collisions_geometric'].sum())}"])
     return note, pd.DataFrame(rows, columns=columns)
+
+
+def corridor_tables(summ: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
+    """A corridor (summary.json ``junctions`` and ``corridor``): per grid point and control, each
+    junction's mean delay and level of service, and along the arterial, per direction, the through
+    trips' travel time, stops and delay (means over seeds with the 95 % confidence half-width)."""
+    from nrtraffic.metrics import is_signalised, level_of_service
+
+    keys = grid_keys(summ)
+    out = []
+
+    def f(r, k, nd=1):
+        m, c = r.get(f"{k}_mean", math.nan), r.get(f"{k}_ci95", math.nan)
+        return "n/a" if m != m else f"{m:.{nd}f}" + ("" if c != c else f" ± {c:.{nd}f}")
+
+    for part, note, figs in (
+            ("junctions", "Per junction of the corridor: the crossings that entered its control zone in the "
+             "measurement window and left its merging zone; mean over seeds ± 95 % half-width. LOS: HCM level "
+             "of service of the mean delay.",
+             [("throughput [veh/h]", "throughput_veh_h", 0), ("delay [s]", "mean_delay_s", 1)]),
+            ("corridor", "Along the arterial: the trips straight through every junction, by the road they enter "
+             "by; travel time is SUMO's trip duration (insertion to arrival) plus the wait to be inserted, stops "
+             "SUMO's waitingCount, delay the crossings' delays added up; mean over seeds ± 95 % half-width.",
+             [("trips", "vehicles", 0), ("travel time [s]", "travel_time_s", 1),
+              ("stops per vehicle", "stops_per_vehicle", 2), ("delay [s]", "delay_s", 1)])):
+        names = sorted({c.split(":")[1] for c in summ.columns if c.startswith(f"{part}:")})
+        if not names:
+            continue
+        label = "junction" if part == "junctions" else "direction (entry road)"
+        columns = keys + ["control", label] + [h for h, _, _ in figs] + (["LOS"] if part == "junctions" else [])
+        rows = []
+        for _, r in summ.iterrows():
+            for name in names:
+                row = [f"{r[k]}" for k in keys] + [r["control"], name]
+                row += [f(r, f"{part}:{name}:{k}", nd) for _, k, nd in figs]
+                if part == "junctions":
+                    m = r.get(f"junctions:{name}:mean_delay_s_mean", math.nan)
+                    row.append("n/a" if m != m else level_of_service(m, is_signalised(r["control"])))
+                rows.append(row)
+        out.append((note, pd.DataFrame(rows, columns=columns)))
+    return out
 
 
 def has_humans(df: pd.DataFrame) -> bool:
