@@ -1248,10 +1248,21 @@ class Engine:
 
     def _blocked_ahead(self, vid: str) -> bool:
         """Whether a vehicle whose crossing is not reserved yet, a human driver or a controlled
-        vehicle queued behind one, is ahead of ``vid`` on its lane (an approach is one lane, which
-        keeps the order of departure)."""
+        vehicle queued behind one, is ahead of ``vid`` on its entry lane, by where SUMO has them
+        now (on a corridor the vehicles on a lane come from several roads upstream, so the order
+        of departure is not the lane's order)."""
         q = self.unreserved.get(self.records[vid].lane)
-        return bool(q) and q[0] != vid and self.records[q[0]].t_depart < self.records[vid].t_depart
+        if not q or q == [vid]:
+            return False
+        here = self._cg_on_path(vid) if vid in self.snap.row else None
+        if here is None:
+            return True  # (not on its path's lanes yet: everyone on the lane is ahead of it)
+        for u in q:
+            if u != vid and u in self.snap.row:
+                s = self._cg_on_path(u)
+                if s is not None and s > here:
+                    return True
+        return False
 
     def _hindered(self, vid: str) -> bool:
         """Whether a controlled vehicle in the control zone must wait for a human driver instead of

@@ -129,3 +129,19 @@ def test_corridor_travel_time_is_sumo_trip_duration(corridor_run):
         length = np.mean([float(trips[v].get("routeLength")) for v in ids])
         assert fig["stops_per_vehicle"] == 0.0
         assert length / 13.89 <= fig["travel_time_s"] < length / 13.89 + 15.0
+
+
+def test_mixed_traffic_on_a_corridor_waits_for_the_humans_ahead_on_the_lane(tmp_path):
+    """Half the vehicles human: on the arterial between junctions the vehicles on a lane come from
+    several roads, so who is ahead is decided by position, not by the order of departure. A
+    controlled car behind a human standing at the next stop line waits for it instead of being
+    scheduled into it: no collision, and the cars track their plans."""
+    sc = scenario.load(CORRIDOR / "scenario.toml", ["scenario.duration_s=200.0", "demand.controlled_share=0.5",
+                                                    "outputs.warmup_s=0.0"])
+    res = run_scenario(sc, tmp_path / "run")
+    s = res.summary
+    assert s["collisions"] == 0 and s["collisions_geometric"] == 0
+    assert s["vehicles_human"] > 20 and s["vehicles_automated"] > 20
+    assert s["max_tracking_error_m"] < 0.5
+    veh = res.vehicles
+    assert ((veh["driver"] == "human") & (veh["leg"] > 0) & veh["t_exit_s"].notna()).sum() > 5
