@@ -26,6 +26,7 @@ from nrtraffic import __version__, metrics
 from nrtraffic.control import batch as kb
 from nrtraffic.control.leaders import find_leaders, pack_path_lanes
 from nrtraffic.control.nr_flow import PREDICTORS
+from nrtraffic.control.table import N_PROFILE_SEG, ControlledTable
 from nrtraffic.demand import shifted_exponential_arrivals
 from nrtraffic.geometry import LanePath, segment_frames, touching_pairs
 from nrtraffic.junction import Junction, Movement
@@ -39,7 +40,6 @@ from nrtraffic.sumo.adapter import SumoSession, VehicleType, sumo_version, write
 from nrtraffic.sumo.network import NetworkError, edge_nodes, junction_movements
 from nrtraffic.vehicle.fuel import fuel_rate
 
-N_PROFILE_SEG = 81  # packed profile segments (closed forms: at most 3 arcs + cruise; rear-end QP: 80 + cruise)
 MIN_CONTROL_ZONE_M = 20.0  # shortest control zone a route may leave after a cut [m]
 STEADY_AFTER_S = 3.0  # DESIGN.md: steady-state tracking error counts after 3 s under control
 PATH_SPACING_M = 0.25  # sampling of the smoothed lane paths [m]
@@ -810,14 +810,13 @@ class Engine:
         sc = self.sc
         dt = sc.sumo.step_length_s
         log_every = max(1, int(round(sc.outputs.trajectory_interval_s / dt)))
-        self.batch_ids: list[str] = []
         self.uncontrolled: list[str] = []
         self.released: list[str] = []  # handed back to SUMO, still read every step (_forget_far)
         self.humans: list[str] = []  # human drivers until they leave the merging zone
         self.reservations: dict = {}  # human driver -> (its reserved crossing, the bounds it was reserved with)
         self.starting: list[str] = []  # controlled vehicles standing at the stop line, their start reserved
         self.unreserved: dict[str, list[str]] = {}  # approach -> its human drivers not yet reserved, in order
-        self._alloc(0)
+        self.ctl = ControlledTable()  # the vehicles under control: the table the kernel reads
         self.approaching: list[str] = []  # controlled vehicles SUMO drives towards their next control zone
         approaching = self.approaching
         scripted: list[str] = []
@@ -838,7 +837,7 @@ class Engine:
                 self.t = self.sumo.time
                 if self.duration > 0 and self.t >= self.duration - 1e-9:
                     break
-                if self.t > 0 and self.sumo.pending() == 0 and not self.batch_ids:
+                if self.t > 0 and self.sumo.pending() == 0 and not self.ctl.ids:
                     break
                 t0 = clock()
                 for vid in self.sumo.departed():
@@ -938,10 +937,7 @@ class Engine:
         finally:
             bar.close()
 
-    # ------------------------------------------------------------------ batch arrays
-    _BATCH = ("X", "U", "prof", "t_enter", "s_enter", "path_id", "hint", "acc", "out", "lead_idx", "lead_ext", "gap",
-              "s_zone", "s_last", "act", "xe")
-
+    # ------------------------------------------------------------------ paths, packed for the kernel
     def _pack_paths(self) -> None:
         self.path_names = list(self.paths)
         self.path_index = {k: i for i, k in enumerate(self.path_names)}
@@ -954,50 +950,6 @@ class Engine:
         # the lanes of the paths, for the leader search
         self.lane_index, self.pl_off, self.pl_lane, self.pl_start, self.pl_scale = pack_path_lanes(
             [self.paths[k] for k in self.path_names])
-
-    def _alloc(self, n: int) -> None:
-        self.X = np.zeros((n, 6))
-        self.U = np.zeros((n, 2))
-        self.prof = np.zeros((n, N_PROFILE_SEG, 5))
-        self.t_enter = np.zeros(n)
-        self.s_enter = np.zeros(n)
-        self.path_id = np.zeros(n, dtype=np.int64)
-        self.hint = np.zeros(n, dtype=np.int64)
-        self.acc = kb.new_acc(n)
-        self.out = np.full((n, kb.N_OUT), np.nan)
-        self.lead_idx = np.full(n, kb.NO_LEADER, dtype=np.int64)
-        self.lead_ext = np.zeros((n, 6))
-        self.gap = np.full(n, np.nan)
-        self.s_zone = np.zeros((n, 2))  # merging-zone entry and exit on the vehicle's path [m]
-        self.s_last = np.zeros(n)  # arc length at the start of the step [m]
-        self.act = np.zeros((n, 2))  # the actuators' output (a_l, delta_f), with an actuator lag
-        self.xe = np.zeros((n, 6))  # the state observer's estimate, with an observer
-
-    def _append(self, vid: str, x0, prof, t0: float, s0: float, lat0: float, ref0, pid: int, hint: int) -> None:
-        self.batch_ids.append(vid)
-        mv = self.paths[self.path_names[pid]]
-        row = {
-            "X": x0[None], "U": np.zeros((1, 2)), "prof": prof[None], "t_enter": [t0], "s_enter": [s0],
-            "path_id": [pid], "hint": [hint], "acc": kb.new_acc(1), "out": np.full((1, kb.N_OUT), np.nan),
-            "lead_idx": [kb.NO_LEADER], "lead_ext": np.zeros((1, 6)), "gap": [np.nan],
-            "s_zone": [[mv.s_merge, mv.s_exit]], "s_last": [s0],
-            "act": np.zeros((1, 2)),  # SUMO drove it at constant speed, straight ahead
-            "xe": x0[None],  # the observer starts from the state at admission
-        }
-        for name in self._BATCH:
-            cur = getattr(self, name)
-            setattr(self, name, np.ascontiguousarray(np.concatenate([cur, np.asarray(row[name], dtype=cur.dtype)])))
-        o = self.out[-1]
-        o[kb.OUT_S], o[kb.OUT_LAT] = s0, lat0
-        o[kb.OUT_REFX], o[kb.OUT_REFY] = ref0
-        o[kb.OUT_ERR] = math.hypot(x0[0] - ref0[0], x0[1] - ref0[1])
-        o[kb.OUT_A], o[kb.OUT_D] = 0.0, 0.0
-        o[kb.OUT_AX], o[kb.OUT_AY] = 0.0, 0.0  # SUMO drove it at constant speed before
-
-    def _remove(self, keep: np.ndarray) -> None:
-        self.batch_ids = [v for v, k in zip(self.batch_ids, keep) if k]
-        for name in self._BATCH:
-            setattr(self, name, np.ascontiguousarray(getattr(self, name)[keep]))
 
     # ------------------------------------------------------------------ steps
     def _record(self, vid: str) -> VehicleRecord | None:
@@ -1201,10 +1153,10 @@ class Engine:
         rec.profile_kind = asg.profile.kind
         rec.plan_intrusion = asg.plan_intrusion_m
         hint = int(np.clip(np.searchsorted(mv.path.s, s_proj) - 1, 0, len(mv.path.s) - 2))
-        self._append(vid, x0, asg.profile.packed(N_PROFILE_SEG), self.t, s_proj, lat0, mv.path.xy_at(s_proj),
-                     self.path_names.index(rec.movement), hint)
+        self.ctl.append(vid, x0, asg.profile.packed(N_PROFILE_SEG), self.t, s_proj, lat0, mv.path.xy_at(s_proj),
+                        self.path_index[rec.movement], hint, (mv.s_merge, mv.s_exit))
         for k in (kb.ACC_ENERGY, kb.ACC_FUEL):  # what it used while SUMO drove it in the control zone
-            self.acc[-1, k] = rec.acc[k]
+            self.ctl.acc[-1, k] = rec.acc[k]
 
     def _track_uncontrolled(self, dt: float) -> None:
         """Zone crossings and figures of SUMO-driven vehicles (baselines, scripted leaders), from
@@ -1467,17 +1419,17 @@ class Engine:
         tab = self.snap
         lane_id = self._lane_ids = np.array([self.lane_index.get(ln, -1) for ln in tab.lane], dtype=np.int64)
         self._sumo_gaps()
-        n = len(self.batch_ids)
+        n = len(self.ctl.ids)
         if n == 0:
             return
         p = self.params
         # each controlled vehicle's row in the table (-1: SUMO no longer lists it), also read by
         # _push_and_release later in the step
-        rows = self.batch_rows = np.array([tab.row.get(v, -1) for v in self.batch_ids], dtype=np.int64)
-        find_leaders(lane_id, tab.lane_pos, tab.x, tab.y, tab.psi, tab.speed, tab.accel, rows, self.path_id,
+        rows = self.ctl.rows = np.array([tab.row.get(v, -1) for v in self.ctl.ids], dtype=np.int64)
+        find_leaders(lane_id, tab.lane_pos, tab.x, tab.y, tab.psi, tab.speed, tab.accel, rows, self.ctl.path_id,
                      self.pl_off, self.pl_lane, self.pl_start, self.pl_scale, LEADER_LOOKAHEAD_M, p.cg_to_front,
-                     p.length, self.lead_idx, self.lead_ext, self.gap)
-        for vid, g in zip(self.batch_ids, self.gap.tolist()):
+                     p.length, self.ctl.lead_idx, self.ctl.lead_ext, self.ctl.gap)
+        for vid, g in zip(self.ctl.ids, self.ctl.gap.tolist()):
             if g == g:  # a leader
                 rec = self.records[vid]
                 rec.min_gap = min(rec.min_gap, g)
@@ -1523,68 +1475,68 @@ class Engine:
                 self.collision_log.append({"t": self.t, "pair": list(pair), "source": "geometric"})
 
     def _advance(self, dt: float) -> None:
-        if not self.batch_ids:
+        if not self.ctl.ids:
             return
-        n = len(self.batch_ids)
+        n = len(self.ctl.ids)
         if self.noise_rng is None:
             noise = np.zeros((n, self.n_sub, 0))
         else:
             noise = self.noise_rng.standard_normal((n, self.n_sub, kb.N_NOISE)) * self.noise_sd
-        kb.advance(self.X, self.U, self.t, self.n_sub, self.cfg, self.plant_p, self.pred_p, self.u_lo, self.u_hi,
-                   self.prof, self.t_enter, self.s_enter, self.path_id, self.path_off, self.path_xy, self.path_s,
-                   self.path_frames, self.hint, self.lead_idx, self.lead_ext, self.acc, self.out, noise, self.act,
-                   self.xe)
-        if not math.isfinite(float(self.X.sum())):  # a NaN or an infinity anywhere makes the sum one
-            bad = [v for v, ok in zip(self.batch_ids, np.isfinite(self.X).all(axis=1)) if not ok]
+        kb.advance(self.ctl.X, self.ctl.U, self.t, self.n_sub, self.cfg, self.plant_p, self.pred_p, self.u_lo, self.u_hi,
+                   self.ctl.prof, self.ctl.t_enter, self.ctl.s_enter, self.ctl.path_id, self.path_off, self.path_xy, self.path_s,
+                   self.path_frames, self.ctl.hint, self.ctl.lead_idx, self.ctl.lead_ext, self.ctl.acc, self.ctl.out, noise, self.ctl.act,
+                   self.ctl.xe)
+        if not math.isfinite(float(self.ctl.X.sum())):  # a NaN or an infinity anywhere makes the sum one
+            bad = [v for v, ok in zip(self.ctl.ids, np.isfinite(self.ctl.X).all(axis=1)) if not ok]
             raise FloatingPointError(f"vehicle state became non-finite at t={self.t:.2f} s: {', '.join(bad)}")
         # merging-zone entry and exit crossed in this step: times interpolated within it
-        s_prev, s_new = self.s_last, self.out[:, kb.OUT_S]
-        for i in np.flatnonzero(s_new >= self.s_zone[:, 0]):
+        s_prev, s_new = self.ctl.s_last, self.ctl.out[:, kb.OUT_S]
+        for i in np.flatnonzero(s_new >= self.ctl.s_zone[:, 0]):
             for k in (0, 1):
-                if s_new[i] >= self.s_zone[i, k] > s_prev[i]:
-                    rec = self.records[self.batch_ids[i]]
-                    t_cross = self.t + dt * (self.s_zone[i, k] - s_prev[i]) / (s_new[i] - s_prev[i])
+                if s_new[i] >= self.ctl.s_zone[i, k] > s_prev[i]:
+                    rec = self.records[self.ctl.ids[i]]
+                    t_cross = self.t + dt * (self.ctl.s_zone[i, k] - s_prev[i]) / (s_new[i] - s_prev[i])
                     if k == 0 and math.isnan(rec.t_merge_actual):
                         rec.t_merge_actual = t_cross
                     elif k == 1 and math.isnan(rec.t_exit):
                         rec.t_exit = t_cross
-        self.s_last[:] = s_new
+        self.ctl.s_last[:] = s_new
 
     def _log(self) -> None:
-        if self.traj is None or not self.batch_ids:
+        if self.traj is None or not self.ctl.ids:
             return
-        X, U, o = self.X, self.U, self.out
-        ref_s = np.array([self.s_enter[i] + packed_position(self.prof[i], self.t - self.t_enter[i])
-                          for i in range(len(self.batch_ids))])
-        s_c = np.array([self.paths[self.records[v].movement].s_control for v in self.batch_ids])
+        X, U, o = self.ctl.X, self.ctl.U, self.ctl.out
+        ref_s = np.array([self.ctl.s_enter[i] + packed_position(self.ctl.prof[i], self.t - self.ctl.t_enter[i])
+                          for i in range(len(self.ctl.ids))])
+        s_c = np.array([self.paths[self.records[v].movement].s_control for v in self.ctl.ids])
         self.traj.append(
-            t=np.full(len(self.batch_ids), self.t), vehicle_id=list(self.batch_ids), s_m=o[:, kb.OUT_S] - s_c,
+            t=np.full(len(self.ctl.ids), self.t), vehicle_id=list(self.ctl.ids), s_m=o[:, kb.OUT_S] - s_c,
             x=X[:, 0], y=X[:, 1], v_l=X[:, 2], v_n=X[:, 3], psi=X[:, 4], psi_dot=X[:, 5], a_cmd=o[:, kb.OUT_A],
             delta_cmd=o[:, kb.OUT_D], a_track=U[:, 0], delta_track=U[:, 1], ref_x=o[:, kb.OUT_REFX],
             ref_y=o[:, kb.OUT_REFY], ref_s_m=ref_s - s_c, tracking_error_m=o[:, kb.OUT_ERR],
             lateral_dev_m=o[:, kb.OUT_LAT],
-            center_distance_m=np.where(self.lead_idx != kb.NO_LEADER, self._centre_now(), np.nan),
-            bumper_gap_m=self.gap, cbf_long_active=o[:, kb.OUT_LONG_FRAC], cbf_lat_active=o[:, kb.OUT_LAT_FRAC],
+            center_distance_m=np.where(self.ctl.lead_idx != kb.NO_LEADER, self._centre_now(), np.nan),
+            bumper_gap_m=self.ctl.gap, cbf_long_active=o[:, kb.OUT_LONG_FRAC], cbf_lat_active=o[:, kb.OUT_LAT_FRAC],
             h_long=o[:, kb.OUT_H_LONG], h_lat=o[:, kb.OUT_H_LAT],
         )
 
     def _centre_now(self) -> np.ndarray:
-        out = np.full(len(self.batch_ids), np.nan)
-        for i in range(len(self.batch_ids)):
-            j = self.lead_idx[i]
+        out = np.full(len(self.ctl.ids), np.nan)
+        for i in range(len(self.ctl.ids)):
+            j = self.ctl.lead_idx[i]
             if j >= 0:
-                out[i] = math.hypot(self.X[j, 0] - self.X[i, 0], self.X[j, 1] - self.X[i, 1])
+                out[i] = math.hypot(self.ctl.X[j, 0] - self.ctl.X[i, 0], self.ctl.X[j, 1] - self.ctl.X[i, 1])
             elif j == kb.EXTERNAL_LEADER:
-                out[i] = math.hypot(self.lead_ext[i, 0] - self.X[i, 0], self.lead_ext[i, 1] - self.X[i, 1])
+                out[i] = math.hypot(self.ctl.lead_ext[i, 0] - self.ctl.X[i, 0], self.ctl.lead_ext[i, 1] - self.ctl.X[i, 1])
         return out
 
     def _push_and_release(self) -> None:
-        if not self.batch_ids:
+        if not self.ctl.ids:
             return
         cg = self.params.cg_to_front
-        ids = self.batch_ids
-        lost = self.batch_rows < 0  # left SUMO's network (rare); rows found by _leaders this step
-        X = self.X
+        ids = self.ctl.ids
+        lost = self.ctl.rows < 0  # left SUMO's network (rare); rows found by _leaders this step
+        X = self.ctl.X
         front_x = X[:, 0] + cg * np.cos(X[:, 4])
         front_y = X[:, 1] + cg * np.sin(X[:, 4])
         speed = np.hypot(X[:, 2], X[:, 3])
@@ -1594,14 +1546,14 @@ class Engine:
         else:
             self.sumo.push_poses([v for v, k in zip(ids, keep) if k], front_x[keep], front_y[keep], X[keep, 4],
                                  speed[keep])
-        done = keep & (self.out[:, kb.OUT_S] >= self.s_zone[:, 1])
+        done = keep & (self.ctl.out[:, kb.OUT_S] >= self.ctl.s_zone[:, 1])
         gone = lost | done
         if not gone.any():
             return
         for i in np.flatnonzero(gone).tolist():
             vid = ids[i]
             rec = self.records[vid]
-            rec.acc = self.acc[i].copy()
+            rec.acc = self.ctl.acc[i].copy()
             if done[i]:
                 self.sumo.release(vid)
                 rec.status = "released"
@@ -1610,7 +1562,7 @@ class Engine:
                     self.released.append(vid)
             else:
                 rec.status = "lost"
-        self._remove(~gone)
+        self.ctl.keep(~gone)
 
     def _script(self, scripted: list[str], t_next: float) -> None:
         """SUMO-driven vehicles with a speed profile: the desired speed for the next step."""
@@ -1719,8 +1671,9 @@ class Engine:
     def _result(self, wall: float, error: BaseException | None, final: bool = True) -> RunResult:
         """The figures so far; ``final`` false for a checkpoint of a run still going (status
         "running", no SUMO timeLoss yet)."""
-        for i, vid in enumerate(getattr(self, "batch_ids", [])):
-            self.records[vid].acc = self.acc[i].copy()
+        ctl = getattr(self, "ctl", None)
+        for i, vid in enumerate(ctl.ids if ctl is not None else []):
+            self.records[vid].acc = ctl.acc[i].copy()
         rows = []
         paths = getattr(self, "paths", {})
         trips = self._tripinfo(final)

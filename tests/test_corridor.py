@@ -145,3 +145,22 @@ def test_mixed_traffic_on_a_corridor_waits_for_the_humans_ahead_on_the_lane(tmp_
     assert s["max_tracking_error_m"] < 0.5
     veh = res.vehicles
     assert ((veh["driver"] == "human") & (veh["leg"] > 0) & veh["t_exit_s"].notna()).sum() > 5
+
+
+@pytest.mark.parametrize("old, new, message", [
+    ('id = "J3"', 'id = "J9"', "junction 'J9' is not in it"),
+    ('id = "J3"', 'id = "E"', "junction 'E' (dead_end) has no movements"),
+])
+def test_a_corridor_naming_a_junction_it_cannot_control_exits_2(old, new, message, tmp_path, capsys):
+    from runners.cli import main
+
+    d = tmp_path / "scen"
+    d.mkdir()
+    for f in CORRIDOR.iterdir():
+        if f.is_file():
+            (d / f.name).write_bytes(f.read_bytes())
+    text = (d / "scenario.toml").read_text()
+    assert old in text
+    (d / "scenario.toml").write_text(text.replace(old, new))
+    assert main(["run", str(d), "--out", str(tmp_path / "o"), "--duration", "5", "--no-progress"]) == 2
+    assert message in capsys.readouterr().err
