@@ -8,6 +8,11 @@ state handed to the kernel; the state at ``t`` is logged; the compiled kernel ad
 controlled vehicle to ``t + dt`` through the plant sub-steps; the poses are pushed to SUMO, and
 vehicles past the merging zone are handed back to SUMO; then SUMO steps. The loop composes the
 pieces; the maths lives in ``vehicle``, ``control``, ``planning`` and ``geometry``.
+
+A run controls one junction or several (:class:`~nrtraffic.junction.Junction`: zones, relations,
+coordinator each); a vehicle's record is one crossing, and on a corridor a vehicle released by one
+junction starts a new record for the next on its route. The vehicles under control are the
+:class:`~nrtraffic.control.table.ControlledTable` the kernel reads.
 """
 
 from __future__ import annotations
