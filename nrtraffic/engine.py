@@ -864,11 +864,7 @@ class Engine:
                         if rec.speed_profile:
                             scripted.append(vid)
                         if rec.driver == "human" and self.control:
-                            rec.status = "human"
-                            self.sumo.stop_at(vid, *self.stop_line[rec.movement, rec.driver])
-                            self.sumo.colour(vid, "human")
-                            self.humans.append(vid)
-                            self.unreserved.setdefault(rec.lane, []).append(vid)
+                            self._to_stop_line(vid)
                 self.snap = self.sumo.snapshot()
                 self._track_uncontrolled(dt)
                 self._humans_step()
@@ -1008,16 +1004,22 @@ class Engine:
             self.sumo.colour(vid, "approaching")
             self.approaching.append(vid)
         elif new.driver == "human" and self.control:
-            new.status = "human"
-            self.reservations.pop(vid, None)
-            self.sumo.stop_at(vid, *self.stop_line[new.movement, new.driver])
-            self.sumo.colour(vid, "human")
-            if vid not in self.humans:
-                self.humans.append(vid)
-            self.unreserved.setdefault(new.lane, []).append(vid)
+            self.reservations.pop(vid, None)  # (its last crossing's, spent)
+            self._to_stop_line(vid)
         else:
             new.status = "sumo"
         return True
+
+    def _to_stop_line(self, vid: str) -> None:
+        """A human driver on its way to a junction: SUMO stops it at the stop line of its movement
+        there, where its crossing will be reserved (:meth:`_humans_step`)."""
+        rec = self.records[vid]
+        rec.status = "human"
+        self.sumo.stop_at(vid, *self.stop_line[rec.movement, rec.driver])
+        self.sumo.colour(vid, "human")
+        if vid not in self.humans:
+            self.humans.append(vid)
+        self.unreserved.setdefault(rec.lane, []).append(vid)
 
     def _request(self, vid: str, entry_only: bool = False):
         """What a vehicle whose centre of gravity crossed the control-zone entry asks of the
