@@ -63,22 +63,27 @@ CHECKPOINT_WALL_S = 10.0  # wall time between checkpoints of the figures (``chec
 WALL_PHASES = ("kernel", "sumo_step", "sumo_io", "admission", "qp", "leaders", "collision_check", "logging")
 
 
+def _max_curvature(path, s_from: float, s_to: float, window_m: float = 2.0) -> float:
+    """Largest curvature [1/m] of ``path`` on ``[s_from, s_to]`` [m], the heading's change averaged
+    over ``window_m`` (0 where the stretch is shorter than that)."""
+    sel = (path.s >= s_from) & (path.s <= s_to)
+    if sel.sum() < 3:
+        return 0.0
+    s = path.s[sel]
+    h = np.unwrap(path.heading_at(s))
+    n = max(1, int(round(window_m / max(float(np.median(np.diff(s))), 1e-6))))
+    if len(s) <= n:
+        return 0.0
+    return float((np.abs(h[n:] - h[:-n]) / (s[n:] - s[:-n])).max())
+
+
 def _curve_speed(path, s_from: float, s_to: float, a_lat: float, window_m: float = 2.0) -> float:
     """Highest constant speed [m/s] on ``[s_from, s_to]`` of ``path`` at lateral acceleration
     ``a_lat`` [m/s^2]: ``sqrt(a_lat / kappa_max)``, the curvature [1/m] averaged over ``window_m``
     (inf when ``a_lat`` is 0, no bound, or the path is straight)."""
     if a_lat <= 0.0:
         return math.inf
-    sel = (path.s >= s_from) & (path.s <= s_to)
-    if sel.sum() < 3:
-        return math.inf
-    s = path.s[sel]
-    h = np.unwrap(path.heading_at(s))
-    n = max(1, int(round(window_m / max(float(np.median(np.diff(s))), 1e-6))))
-    if len(s) <= n:
-        return math.inf
-    kappa = np.abs(h[n:] - h[:-n]) / (s[n:] - s[:-n])
-    k_max = float(kappa.max())
+    k_max = _max_curvature(path, s_from, s_to, window_m)
     return math.sqrt(a_lat / k_max) if k_max > 1e-9 else math.inf
 
 
@@ -482,7 +487,7 @@ class Engine:
         for rname, _lane, name, lane_in, lane_out in moves:
             appr, turn, route = self.movement_table[rname]
             j = self.junctions[self.movement_junction[rname]]
-            where = f"junction {j.id}" if len(self.junctions) > 1 else "zones"
+            key = f"merging_zone_m of [[junctions]] {j.id}" if len(self.junctions) > 1 else "zones.merging_zone_m"
             lanes = sumo.route_lanes(route, lane_in, lane_out)
             pts = [pt for _, shape, _ in lanes for pt in shape]
             path = LanePath.from_points(pts, smooth_spacing=PATH_SPACING_M)
@@ -527,7 +532,7 @@ class Engine:
                 r = max(float(np.hypot(*(np.asarray(lanes[k][1]) - j.xy).T).max()) for k in internal)
                 if r > j.merging_zone_m / 2.0 + 0.5:
                     raise ValueError(f"movement {name}: junction {j.id}'s internal lanes reach "
-                                     f"{r:.1f} m from its centre, beyond the merging zone ({where}.merging_zone_m = "
+                                     f"{r:.1f} m from its centre, beyond the merging zone ({key} = "
                                      f"{j.merging_zone_m:g} m); set it to at least {2.0 * math.ceil(r + 1.0):g} m")
             if self.control:  # (SUMO drives a baseline's vehicles: the path only measures them)
                 self._check_turn_radius(name, path, s_c, s_x)
@@ -542,23 +547,17 @@ class Engine:
                   file=sys.stderr)
         return out
 
-    def _check_turn_radius(self, name: str, path: LanePath, s_from: float, s_to: float, window_m: float = 2.0) -> None:
+    def _check_turn_radius(self, name: str, path: LanePath, s_from: float, s_to: float) -> None:
         """Raise ValueError when movement ``name``'s path between ``s_from`` and ``s_to`` [m] turns
-        tighter than the controlled car can steer: the curvature averaged over ``window_m`` [1/m]
-        above the kinematic bound ``tan(steer_max) / (l_f + l_r)``. (netconvert draws a junction's
-        turns with the node's ``radius``, 4 m by default; at a sharply skewed corner that can leave
-        a turn tighter than any car's.)"""
-        sel = (path.s >= s_from) & (path.s <= s_to)
-        s = path.s[sel]
-        n = max(1, int(round(window_m / PATH_SPACING_M)))
-        if len(s) <= n:
-            return
-        h = np.unwrap(path.heading_at(s))
-        kappa = np.abs(h[n:] - h[:-n]) / (s[n:] - s[:-n])
+        tighter than the controlled car can steer: the curvature averaged over 2 m [1/m] above the
+        kinematic bound ``tan(steer_max) / (l_f + l_r)``. (netconvert draws a junction's turns
+        with the node's ``radius``, 4 m by default; at a sharply skewed corner that can leave a
+        turn tighter than any car's.)"""
+        kappa = _max_curvature(path, s_from, s_to)
         p = self.params
         k_max = math.tan(self.sc.controller.steer_max_rad) / (p.lf + p.lr)
-        if kappa.max() > k_max:
-            raise ValueError(f"movement {name}: its path turns on a radius of {1.0 / kappa.max():.1f} m, tighter than "
+        if kappa > k_max:
+            raise ValueError(f"movement {name}: its path turns on a radius of {1.0 / kappa:.1f} m, tighter than "
                              f"the vehicle's smallest ({1.0 / k_max:.1f} m at controller.steer_max_rad = "
                              f"{self.sc.controller.steer_max_rad:.3g} rad); give the junction a larger turning radius "
                              f"in the network (netconvert: the node's radius, or --default.junctions.radius)")
