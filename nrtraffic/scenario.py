@@ -315,9 +315,11 @@ class HumanDriver:
 class Junction:
     """``[junction]``: an intersection whose incoming edges are the approaches.
 
-    With ``id`` set, every incoming edge of that junction is an approach and every connection a
-    movement (its route: incoming edge, outgoing edge); the merging zone is the disc of diameter
-    ``zones.merging_zone_m`` around the junction centre. Two movements conflict when they leave on
+    With ``id`` set, every incoming edge of that junction is an approach and every lane-to-lane
+    connection a movement (its route: incoming edge, outgoing edge; a vehicle's lane, where the
+    road has several, is the one SUMO inserts it on); the merging zone is the disc of diameter
+    ``zones.merging_zone_m`` around the junction centre. ``[[junctions]]`` lists several junctions
+    instead (a corridor); ``lateral_clearance_m`` applies to all. Two movements conflict when they leave on
     the same lane or when the areas their car bodies sweep inside the zone overlap, each body
     widened by ``lateral_clearance_m`` on both sides; they are on the same lane when they share the
     incoming lane, and compatible otherwise (planning/conflicts.py).
