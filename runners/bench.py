@@ -219,6 +219,8 @@ def run_all(quick: bool = False) -> str:
     again = bench_run(cross, 30.0)
     runs = [bench_run(cross, dur), bench_run(cross, dur, ("demand.rate_veh_h=600",)),
             bench_run(cross, dur, ('controller.predictor="euler"', "controller.predictor_step_s=0.001")),
+            bench_run(ROOT / "sumo_scenarios" / "cross4_2lane" / "scenario.toml", dur),
+            bench_run(ROOT / "sumo_scenarios" / "corridor3" / "scenario.toml", dur),
             bench_run(ROOT / "sumo_scenarios" / "paper_curved" / "scenario.toml"),
             bench_run(ROOT / "sumo_scenarios" / "paper_cbf" / "scenario.toml")]
     mem = [bench_memory(d) for d in ((60.0, 120.0) if quick else (600.0, 3600.0))]
