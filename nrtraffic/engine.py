@@ -784,7 +784,10 @@ class Engine:
                     self.paths = self._paths(self.sumo)
                     self._pack_paths()
                     self.relations = self._relations()
-                    self.stop_line = self._stop_lines() if (self._humans and self.control) else {}
+                    # where vehicles stop before they cross: human drivers, cars queued behind them,
+                    # and on a corridor cars with no merge time yet (_hold)
+                    self.stop_line = (self._stop_lines() if self.control and (self._humans or self.upstream_junction)
+                                      else {})
                 except ValueError as exc:  # the junction or its zones do not suit: nothing was run
                     raise NetworkError(f"{self.sc.general.name}: {exc}") from None
                 self._write_movements()
@@ -1049,7 +1052,8 @@ class Engine:
         v_lim = mv.v_limit
         if rec.hindered:  # slowed behind a human: cross no faster than half the bound's acceleration reaches
             v_lim = min(v_lim, math.sqrt(v * v + self.sc.planning.u_max_mps2 * max(D, 0.0)))
-        req = Request(vid, rec.lane, self.t, v, D, rec.movement, mv.s_exit - mv.s_merge, v_lim, rec.hindered)
+        req = Request(vid, rec.lane, self.t, v, D, rec.movement, mv.s_exit - mv.s_merge, v_lim, rec.hindered,
+                      rec.approach in self.upstream_junction)
         return req, x0, s_proj, lat0
 
     def _try_admit(self, vid: str) -> str:
@@ -1133,8 +1137,19 @@ class Engine:
             acc[kb.ACC_FUEL] += fuel_rate(v, a) * dt
 
     def _hold(self, vid: str) -> None:
+        """No merge time for a vehicle in the control zone now: SUMO stops it at the control-zone
+        entry and admission is tried again. Where that entry is the hand-over from a junction
+        upstream (a corridor), stopping there would block that junction's exit: SUMO drives it on
+        instead, to a stop short of the merging zone, and it is scheduled on the way or started
+        from that stop, as a car queued behind a human driver is (:meth:`_hindered`)."""
         rec = self.records[vid]
         if rec.hindered:  # it drives on to its stop at the stop line (_hindered)
+            return
+        if rec.approach in self.upstream_junction:
+            rec.hindered = True
+            self.sumo.stop_at(vid, *self.stop_line[rec.movement, "automated"])
+            self.sumo.colour(vid, "held")
+            bisect.insort(self.unreserved.setdefault(rec.lane, []), vid, key=lambda v: self.records[v].t_depart)
             return
         if rec.status != "held":
             rec.status = "held"

@@ -57,6 +57,31 @@ def _req(vid, movement, D, lane=None, v=10.0):
     return Request(vid, lane or f"lane_{movement}", 0.0, v, D, movement, 30.0, v)
 
 
+def test_a_handed_over_follower_that_cannot_keep_behind_its_leader_is_not_committed():
+    """A follower 13 m/s fast, close behind a 4 m/s leader on its lane: keeping the 12 m spacing
+    needs (13 - 4)^2 / (2 * 3 m/s^2) = 13.5 m of room to shed the speed difference at the planning
+    bound u_min (closed form). With 8 m of room no plan exists. A vehicle handed over from a
+    junction upstream is then refused and nothing is committed (the leader stays the lane's last);
+    with 28 m of room it is planned behind the leader, keeping the gap everywhere. Any other
+    vehicle keeps its closed-form plan, its intrusion recorded (the barrier's case)."""
+    from nrtraffic.planning.profiles import rear_end_violation
+
+    bounds = PlanBounds(u_min_mps2=-3.0)
+    c = Coordinator(CoordinatorSettings(rear_end_spacing_m=12.0, min_merge_headway_s=1.0), bounds)
+    lead = c.schedule("lead", "L", 0.0, 4.0, 200.0)
+    assert (13.0 - 4.0) ** 2 / (2 * 3.0) == pytest.approx(13.5)
+    with pytest.raises(ScheduleInfeasible, match="keeps 12 m behind lead"):
+        c.schedule_request(Request("fast", "L", 0.0, 13.0, 200.0 + 20.0, handed_over=True))  # 8 m of room
+    ok = c.schedule_request(Request("far", "L", 0.0, 13.0, 200.0 + 40.0, handed_over=True))  # 28 m of room
+    assert ok.predecessor == "lead"  # the refused request left no trace on the lane
+    shift = lead.profile.D - ok.profile.D
+    assert rear_end_violation(ok.profile, lambda t: lead.profile.evaluate(t)[0] - shift, ok.t_merge, 12.0) <= 0.05
+    c2 = Coordinator(CoordinatorSettings(rear_end_spacing_m=12.0, min_merge_headway_s=1.0), bounds)
+    c2.schedule("lead", "L", 0.0, 4.0, 200.0)
+    kept = c2.schedule("fast", "L", 0.0, 13.0, 200.0 + 20.0)
+    assert kept.plan_intrusion_m > 1.0
+
+
 def test_batch_serves_a_lane_mate_before_the_cross_flow_by_hand():
     """a1 and a2 (movement A, one lane) and b1 (B, crossing A: A's area [10, 20] m, B's [12, 22] m),
     all at 10 m/s, 1 s margin; at the batch's close a1 is 390 m, b1 395 m and a2 398 m from the zone

@@ -21,7 +21,8 @@ before its own merge time (the leader's plan continues at constant speed past it
 replaced by the energy-optimal profile with that rear-end constraint
 (:func:`~nrtraffic.planning.profiles.rear_end_constrained`, a QP); if that QP has no solution, the
 closed form is kept, its intrusion into the gap is recorded, and the longitudinal barrier keeps
-the cars apart.
+the cars apart. A vehicle handed over from a junction upstream (``Request.handed_over``) gets no
+such plan: its request fails, and it asks again once SUMO's driver has made room.
 
 ``T_earliest`` is ``D / v0`` (cruise at the entry speed, as Malikopoulos et al. 2018 and the paper:
 an unhindered vehicle keeps its speed) or the bound-limited minimum time, whichever is longer;
@@ -171,6 +172,10 @@ class Request:
     # slowed before its entry by a vehicle it cannot pass (a human driver ahead): it does not keep
     # an entry speed, so its earliest arrival is the one the bounds allow
     hindered: bool = False
+    # handed over from a junction upstream (a corridor): it may come in fast, close behind a slow
+    # leader that turned onto its road; a plan that cannot keep behind the leader's is then not
+    # committed (ScheduleInfeasible) but asked for again once SUMO's driver has made room
+    handed_over: bool = False
 
 
 @dataclass
@@ -220,6 +225,10 @@ class Coordinator:
         intrusion = float("nan")
         if prev is not None:
             prof, intrusion = self._keep_behind(prof, prev, t0, v0, D, t_m)
+            if r.handed_over and intrusion > REAR_END_TOL_M:
+                raise ScheduleInfeasible(f"vehicle {vehicle_id}: no plan within the bounds keeps "
+                                         f"{self.settings.rear_end_spacing_m:g} m behind {prev.vehicle_id}'s "
+                                         f"(it would come {intrusion:.2f} m closer)")
         t_exit = t_m + r.zone_length_m / prof.v_m
         a = Assignment(vehicle_id, lane, t0, t_m, prof, pred, relation, binding, movement, t_exit, intrusion)
         self._last_on_lane[lane] = a
