@@ -822,7 +822,7 @@ class Engine:
         self.humans: list[str] = []  # human drivers until they leave the merging zone
         self.reservations: dict = {}  # human driver -> (its reserved crossing, the bounds it was reserved with)
         self.starting: list[str] = []  # controlled vehicles standing at the stop line, their start reserved
-        self.unreserved: dict[str, list[str]] = {}  # approach -> its human drivers not yet reserved, in order
+        self.unreserved: dict[str, list[str]] = {}  # entry lane -> its vehicles whose crossing is not reserved yet
         self.ctl = ControlledTable()  # the vehicles under control: the table the kernel reads
         self.approaching: list[str] = []  # controlled vehicles SUMO drives towards their next control zone
         approaching = self.approaching
