@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,12 +41,26 @@ class JunctionMovement:
         return self.route if self.in_lanes == 1 else f"{self.lane}.{self.turn}"
 
 
+def read_net(net_path: Path):
+    """The network as sumolib reads it (junction-internal lanes included), read once per file and
+    version of it in a process: a run reads it for each junction, the check before it again, and an
+    OpenStreetMap network takes seconds to read."""
+    p = Path(net_path).resolve()
+    st = p.stat()
+    return _read_net(str(p), st.st_mtime_ns, st.st_size)
+
+
+@functools.lru_cache(maxsize=4)
+def _read_net(path: str, mtime_ns: int, size: int):
+    import sumolib
+
+    return sumolib.net.readNet(path, withInternal=True)
+
+
 def junction_movements(net_path: Path, junction_id: str) -> tuple[list[JunctionMovement], tuple[float, float]]:
     """The movements through ``junction_id``, one per lane-to-lane connection of every incoming
     lane (the first, where a lane connects to two lanes of the same road), and its position."""
-    import sumolib
-
-    net = sumolib.net.readNet(str(net_path), withInternal=True)
+    net = read_net(net_path)
     if not net.hasNode(junction_id):
         raise NetworkError(f"junction {junction_id!r} is not in {net_path}")
     node = net.getNode(junction_id)
@@ -72,13 +87,8 @@ def junction_movements(net_path: Path, junction_id: str) -> tuple[list[JunctionM
 
 def edge_nodes(net_path: Path) -> dict[str, tuple[str, str]]:
     """Every normal edge of the network: ``edge id -> (from junction, to junction)``."""
-    import xml.etree.ElementTree as ET
-
-    out = {}
-    for _, el in ET.iterparse(net_path, events=("start",)):
-        if el.tag == "edge" and el.get("function") is None:
-            out[el.get("id")] = (el.get("from"), el.get("to"))
-    return out
+    return {e.getID(): (e.getFromNode().getID(), e.getToNode().getID())
+            for e in read_net(net_path).getEdges(withInternal=False)}
 
 
 def check_scenario(net_path: Path, junction_ids=(), edges: tuple[str, ...] = ()) -> None:
@@ -116,11 +126,9 @@ def check_scenario(net_path: Path, junction_ids=(), edges: tuple[str, ...] = ())
     if problems:
         raise NetworkError(f"{net_path}: " + "; ".join(problems))
     if len(junction_ids) > 1:  # a corridor: between two controlled junctions, one lane each way
-        import sumolib
-
-        net = sumolib.net.readNet(str(net_path))
-        wide = [e.getID() for e in net.getEdges() if e.getFromNode().getID() in junction_ids
-                and e.getToNode().getID() in junction_ids and e.getLaneNumber() > 1]
+        wide = [e.getID() for e in read_net(net_path).getEdges(withInternal=False)
+                if e.getFromNode().getID() in junction_ids and e.getToNode().getID() in junction_ids
+                and e.getLaneNumber() > 1]
         if wide:
             raise NetworkError(f"{net_path}: the road{'s' if len(wide) > 1 else ''} {', '.join(map(repr, wide))} "
                                f"between two controlled junctions {'have' if len(wide) > 1 else 'has'} more than one "
@@ -166,7 +174,5 @@ def check_sumo_args(args: tuple[str, ...]) -> None:
 
 def edge_lanes(net_path: Path, edges) -> list[tuple[str, str, float]]:
     """``(edge, lane id, lane length [m])`` of every lane of ``edges``, from the network file."""
-    import sumolib
-
-    net = sumolib.net.readNet(str(net_path))
+    net = read_net(net_path)
     return [(e, lane.getID(), lane.getLength()) for e in edges for lane in net.getEdge(e).getLanes()]
