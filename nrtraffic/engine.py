@@ -17,7 +17,6 @@ junction starts a new record for the next on its route. The vehicles under contr
 
 from __future__ import annotations
 
-import bisect
 import math
 import sys
 import time
@@ -336,15 +335,13 @@ class Engine:
         movement counts, else the global turning shares). The route of a trip through several
         junctions is named by its movements joined with "+" (:attr:`itineraries`)."""
         rng = np.random.default_rng([self.seed, ROUTE_STREAM])
-        d = self.sc.demand
         shares = {}
         for appr in {a for a, _, _ in self.movement_table.values()}:
             if appr in rates:
                 _, names, share = rates[appr]
             else:
                 names = [n for n, (a, _, _) in self.movement_table.items() if a == appr]
-                share = np.array([{"left": d.turn_left, "right": d.turn_right}.get(self.movement_table[n][1],
-                                  1.0 - d.turn_left - d.turn_right) for n in names])
+                share = self._default_shares(names)
             if share.sum() <= 0:
                 share = np.ones(len(names))
             shares[appr] = (names, share / share.sum())
@@ -362,7 +359,7 @@ class Engine:
             out.append((vid, key, *rest))
         return out
 
-    def _route_edges(self, route: str) -> tuple[str, ...]:
+    def route_edges(self, route: str) -> tuple[str, ...]:
         """The edges of a demand route: a turning movement's, or a corridor trip's (:attr:`itineraries`)."""
         legs = self.itineraries.get(route, (route,))
         edges = list(self.movement_table[legs[0]][2])
@@ -449,12 +446,16 @@ class Engine:
         if d.headway_s <= 0:
             return {}
         for appr, names in approaches.items():
-            share = np.array([{"left": d.turn_left, "right": d.turn_right}.get(self.movement_table[n][1],
-                              1.0 - d.turn_left - d.turn_right) for n in names])
-            if share.sum() <= 0:
-                share = np.ones(len(names))
-            out[appr] = (3600.0 / d.headway_s, names, share)
+            out[appr] = (3600.0 / d.headway_s, names, self._default_shares(names))
         return out
+
+    def _default_shares(self, names: list[str]) -> np.ndarray:
+        """The global turning shares (``demand.turn_left``, ``turn_right``, the rest straight) of
+        turning movements ``names`` of one approach; equal shares where they give none."""
+        d = self.sc.demand
+        share = np.array([{"left": d.turn_left, "right": d.turn_right}.get(self.movement_table[n][1],
+                          1.0 - d.turn_left - d.turn_right) for n in names])
+        return share if share.sum() > 0 else np.ones(len(names))
 
     def demand_veh_h(self, begin: float, end: float, approach: str | None = None) -> float:
         """Mean demand into the junctions (or one approach) over ``[begin, end]`` [veh/h]: every
@@ -742,7 +743,7 @@ class Engine:
             types.append(VehicleType("human", p.length, p.width, h.min_gap_m, h.accel_mps2, h.decel_mps2, v_max,
                                      h.sigma, h.tau_s, h.speed_dev, h.car_follow_model))
         routes = {k: v[2] for k, v in self.movement_table.items()}
-        routes.update({k: self._route_edges(k) for k in self.itineraries})
+        routes.update({k: self.route_edges(k) for k in self.itineraries})
         write_routes(path, types, routes, demand)
         return demand
 
@@ -822,7 +823,8 @@ class Engine:
         self.humans: list[str] = []  # human drivers until they leave the merging zone
         self.reservations: dict = {}  # human driver -> (its reserved crossing, the bounds it was reserved with)
         self.starting: list[str] = []  # controlled vehicles standing at the stop line, their start reserved
-        self.unreserved: dict[str, list[str]] = {}  # entry lane -> its vehicles whose crossing is not reserved yet
+        # entry lane -> its vehicles whose crossing is not reserved yet (who is ahead: _blocked_ahead)
+        self.unreserved: dict[str, list[str]] = {}
         self.ctl = ControlledTable()  # the vehicles under control: the table the kernel reads
         self.approaching: list[str] = []  # controlled vehicles SUMO drives towards their next control zone
         approaching = self.approaching
@@ -1146,10 +1148,7 @@ class Engine:
         if rec.hindered:  # it drives on to its stop at the stop line (_hindered)
             return
         if rec.approach in self.upstream_junction:
-            rec.hindered = True
-            self.sumo.stop_at(vid, *self.stop_line[rec.movement, "automated"])
-            self.sumo.colour(vid, "held")
-            bisect.insort(self.unreserved.setdefault(rec.lane, []), vid, key=lambda v: self.records[v].t_depart)
+            self._wait_at_stop_line(vid, "held")
             return
         if rec.status != "held":
             rec.status = "held"
@@ -1237,6 +1236,16 @@ class Engine:
                     return True
         return False
 
+    def _wait_at_stop_line(self, vid: str, colour: str) -> None:
+        """A controlled vehicle that is not scheduled yet and must not cross unplanned: SUMO drives
+        it on to a stop short of the merging zone; until its crossing is scheduled or reserved it
+        counts as unreserved on its lane (the vehicles behind it wait for it, :meth:`_hindered`)."""
+        rec = self.records[vid]
+        rec.hindered = True
+        self.sumo.stop_at(vid, *self.stop_line[rec.movement, "automated"])
+        self.sumo.colour(vid, colour)
+        self.unreserved.setdefault(rec.lane, []).append(vid)
+
     def _hindered(self, vid: str) -> bool:
         """Whether a controlled vehicle in the control zone must wait for a human driver instead of
         being scheduled now. When it is first found with an unreserved vehicle ahead on its lane
@@ -1251,10 +1260,7 @@ class Engine:
         if not rec.hindered:
             if not self._blocked_ahead(vid):
                 return False
-            rec.hindered = True
-            self.sumo.stop_at(vid, *self.stop_line[rec.movement, rec.driver])
-            self.sumo.colour(vid, "pending")
-            bisect.insort(self.unreserved[rec.lane], vid, key=lambda v: self.records[v].t_depart)
+            self._wait_at_stop_line(vid, "pending")
             return True
         if self._blocked_ahead(vid):
             return True

@@ -54,7 +54,7 @@ def coordinate_signals(sc: scenario_mod.Scenario, net: Path, sdir: Path, seed: i
         lines = ["<routes>"]
         for vid, route, depart, *_ in demand:
             lines.append(f'    <vehicle id="{vid}" depart="{depart:.2f}"><route edges="'
-                         f'{" ".join(eng._route_edges(route))}"/></vehicle>')
+                         f'{" ".join(eng.route_edges(route))}"/></vehicle>')
         lines.append("</routes>")
         routes = Path(tmp) / "embedded.rou.xml"
         routes.write_text("\n".join(lines) + "\n")

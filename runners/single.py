@@ -81,10 +81,15 @@ def claim_run_dir(out: Path, sc: scenario_mod.Scenario, seed: int | None, durati
     if not (same or force):
         raise ValueError(f"--out {out} is not empty and is not a finished run of this configuration: "
                          "choose another folder, or --force to replace the run in it")
+    remove_run_files(out)
+
+
+def remove_run_files(out: Path) -> None:
+    """Remove from ``out`` the files a run writes (:data:`RUN_FILES`), and nothing else."""
     for name in RUN_FILES:
-        p = out / name
+        p = Path(out) / name
         if p.is_dir():
-            shutil.rmtree(p)
+            shutil.rmtree(p, ignore_errors=True)
         elif p.exists():
             p.unlink()
 
@@ -106,12 +111,7 @@ def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: 
     try:
         result = engine.run()
     except NetworkError:  # the junction or its zones do not suit: nothing was simulated, nothing is kept
-        for name in RUN_FILES:
-            p = out / name
-            if p.is_dir():
-                shutil.rmtree(p, ignore_errors=True)
-            elif p.exists():
-                p.unlink()
+        remove_run_files(out)
         raise
     except RunFailed as exc:
         exc.result.summary.update(extra_summary or {})

@@ -399,6 +399,13 @@ def write_tables(df: pd.DataFrame, out: Path, figures=sweep_figures) -> None:
     sweep_report(out, tables, names)
 
 
+def mean_ci(r, k: str, nd: int = 1) -> str:
+    """Figure ``k`` of a row of the sweep summary as "mean ± 95 % half-width" with ``nd``
+    decimals ("n/a" without runs)."""
+    m, c = r.get(f"{k}_mean", math.nan), r.get(f"{k}_ci95", math.nan)
+    return "n/a" if m != m else f"{m:.{nd}f}" + ("" if c != c else f" ± {c:.{nd}f}")
+
+
 def table(summ: pd.DataFrame, df: pd.DataFrame) -> tuple[str, pd.DataFrame]:
     """The study table (the one in sweep.md and report.html): a note saying what it shows, and one
     row of formatted cells per grid point and control."""
@@ -424,12 +431,6 @@ def table(summ: pd.DataFrame, df: pd.DataFrame) -> tuple[str, pd.DataFrame]:
                + ["delay [s]", "LOS", "SUMO timeLoss [s]", "fuel [mL/veh]", "collisions: SUMO / own check"])
     rows = []
 
-    def f(r, k, nd=1):
-        m, c = r.get(f"{k}_mean", math.nan), r.get(f"{k}_ci95", math.nan)
-        if m != m:
-            return "n/a"
-        return f"{m:.{nd}f}" + ("" if c != c else f" ± {c:.{nd}f}")
-
     def total(r, k):
         m = r.get(f"{k}_mean", math.nan)
         return "n/a" if m != m else f"{round(m * r['runs']):d}"
@@ -440,12 +441,12 @@ def table(summ: pd.DataFrame, df: pd.DataFrame) -> tuple[str, pd.DataFrame]:
             sh = r.get("served_share_mean", math.nan)
             extra.append("n/a" if sh != sh else f"{100 * sh:.0f} %")
         if waiting:
-            extra.append(f(r, "vehicles_waiting_to_enter", 0))
+            extra.append(mean_ci(r, "vehicles_waiting_to_enter", 0))
         delay = r.get("mean_delay_s_mean", math.nan)
         cells = [f"{r[k]}" for k in keys] + [
-            r["control"], f"{r['runs']} ({r['failed']})", f(r, "throughput_veh_h", 0), *extra, f(r, "mean_delay_s"),
+            r["control"], f"{r['runs']} ({r['failed']})", mean_ci(r, "throughput_veh_h", 0), *extra, mean_ci(r, "mean_delay_s"),
             level_of_service(delay, is_signalised(r["control"])),
-            f(r, "mean_sumo_time_loss_s"), f(r, "mean_fuel_ml"),
+            mean_ci(r, "mean_sumo_time_loss_s"), mean_ci(r, "mean_fuel_ml"),
             f"{total(r, 'collisions')} / {total(r, 'collisions_geometric')}"]
         rows.append(cells)
     return note, pd.DataFrame(rows, columns=columns)
@@ -484,10 +485,6 @@ def corridor_tables(summ: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
     keys = grid_keys(summ)
     out = []
 
-    def f(r, k, nd=1):
-        m, c = r.get(f"{k}_mean", math.nan), r.get(f"{k}_ci95", math.nan)
-        return "n/a" if m != m else f"{m:.{nd}f}" + ("" if c != c else f" ± {c:.{nd}f}")
-
     for part, note, figs in (
             ("junctions", "Per junction of the corridor: the crossings that entered its control zone in the "
              "measurement window and left its merging zone; mean over seeds ± 95 % half-width. LOS: HCM level "
@@ -507,7 +504,7 @@ def corridor_tables(summ: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
         for _, r in summ.iterrows():
             for name in names:
                 row = [f"{r[k]}" for k in keys] + [r["control"], name]
-                row += [f(r, f"{part}:{name}:{k}", nd) for _, k, nd in figs]
+                row += [mean_ci(r, f"{part}:{name}:{k}", nd) for _, k, nd in figs]
                 if part == "junctions":
                     m = r.get(f"junctions:{name}:mean_delay_s_mean", math.nan)
                     row.append("n/a" if m != m else level_of_service(m, is_signalised(r["control"])))
@@ -537,10 +534,6 @@ def driver_table(summ: pd.DataFrame, df: pd.DataFrame) -> tuple[str, pd.DataFram
     columns = keys + ["control", "human share", "delay automated [s]", "delay human [s]", "min gap automated [m]",
                       "min gap human [m]", "collisions: automated / mixed / human"]
 
-    def f(r, k):
-        m, c = r.get(f"{k}_mean", math.nan), r.get(f"{k}_ci95", math.nan)
-        return "n/a" if m != m else f"{m:.1f}" + ("" if c != c else f" ± {c:.1f}")
-
     rows = []
     for _, r in summ.iterrows():
         sel = ok["control"] == r["control"]
@@ -557,8 +550,8 @@ def driver_table(summ: pd.DataFrame, df: pd.DataFrame) -> tuple[str, pd.DataFram
 
         share = r.get("human_share_mean", math.nan)
         rows.append([f"{r[k]}" for k in keys] + [
-            r["control"], "n/a" if share != share else f"{100 * share:.0f} %", f(r, "mean_delay_automated_s"),
-            f(r, "mean_delay_human_s"), lo("min_bumper_gap_automated_m"), lo("min_bumper_gap_human_m"),
+            r["control"], "n/a" if share != share else f"{100 * share:.0f} %", mean_ci(r, "mean_delay_automated_s"),
+            mean_ci(r, "mean_delay_human_s"), lo("min_bumper_gap_automated_m"), lo("min_bumper_gap_human_m"),
             f"{total('collisions_automated')} / {total('collisions_mixed')} / {total('collisions_human')}"])
     return note, pd.DataFrame(rows, columns=columns)
 
