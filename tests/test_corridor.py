@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import SCENARIOS
+from conftest import SCENARIOS, conflict_gaps, copy_scenario
 from nrtraffic import scenario
 from nrtraffic.sumo.network import edge_nodes
 from runners.single import run_scenario
@@ -90,24 +90,10 @@ def test_each_junction_keeps_its_conflicting_crossings_apart(corridor_run):
     """As on one junction (tests/test_junction.py), for every junction of the corridor: two
     crossings of conflicting movements held their conflict area at least the margin apart."""
     res, out = corridor_run
-    veh = pd.read_csv(out / "vehicles.csv")
-    doc = json.loads((out / "movements.json").read_text())
-    areas = {(c["movement"], c["with"]): (c["from_m"], c["to_m"]) for c in doc["conflict_areas"]}
-    margin = tomllib.loads((out / "scenario.resolved.toml").read_text())["coordinator"]["conflict_margin_s"]
-    veh["mv"] = veh["approach"] + "." + veh["movement"]
-    rows = veh[veh["t_exit_s"].notna()].to_dict("records")
-    checked = {"J1": 0, "J2": 0, "J3": 0}
-    for i, a in enumerate(rows):
-        for b in rows[i + 1:]:
-            if (a["mv"], b["mv"]) in areas:
-                assert a["junction"] == b["junction"]  # relations are within a junction only
-                (fa, ta), (fb, tb) = areas[(a["mv"], b["mv"])], areas[(b["mv"], a["mv"])]
-                va, vb = a["v_merge_planned_mps"], b["v_merge_planned_mps"]
-                a_in, a_out = a["t_merge_actual_s"] + fa / va, a["t_merge_actual_s"] + ta / va
-                b_in, b_out = b["t_merge_actual_s"] + fb / vb, b["t_merge_actual_s"] + tb / vb
-                assert max(b_in - a_out, a_in - b_out) > margin - 0.1, (a["vehicle_id"], b["vehicle_id"])
-                checked[a["junction"]] += 1
-    assert min(checked.values()) > 5
+    gaps, margin = conflict_gaps(out)
+    for _, a, b, gap in gaps:
+        assert gap > margin - 0.1, (a, b, gap)
+    assert min(sum(j == name for j, *_ in gaps) for name in ("J1", "J2", "J3")) > 5
 
 
 def test_corridor_travel_time_is_sumo_trip_duration(corridor_run):
@@ -154,14 +140,7 @@ def test_mixed_traffic_on_a_corridor_waits_for_the_humans_ahead_on_the_lane(tmp_
 def test_a_corridor_naming_a_junction_it_cannot_control_exits_2(old, new, message, tmp_path, capsys):
     from runners.cli import main
 
-    d = tmp_path / "scen"
-    d.mkdir()
-    for f in CORRIDOR.iterdir():
-        if f.is_file():
-            (d / f.name).write_bytes(f.read_bytes())
-    text = (d / "scenario.toml").read_text()
-    assert old in text
-    (d / "scenario.toml").write_text(text.replace(old, new))
+    d = copy_scenario("corridor3", tmp_path / "scen", old, new)
     assert main(["run", str(d), "--out", str(tmp_path / "o"), "--duration", "5", "--no-progress"]) == 2
     assert message in capsys.readouterr().err
 

@@ -12,7 +12,7 @@ import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
-from conftest import ROOT, SCENARIOS
+from conftest import ROOT, SCENARIOS, copy_scenario
 from nrtraffic.results import PARTIAL_TRAJECTORIES, read_trajectories
 from runners.cli import main
 
@@ -156,17 +156,7 @@ def test_scenario_files_cannot_reach_outside_their_folder(tmp_path, capsys):
 
 
 def _scenario_copy(tmp_path, old=None, new=None, extra=""):
-    d = tmp_path / "scen"
-    d.mkdir(exist_ok=True)
-    for f in (SCENARIOS / "cross4").iterdir():
-        if f.is_file():
-            (d / f.name).write_bytes(f.read_bytes())
-    text = (d / "scenario.toml").read_text()
-    if old is not None:
-        assert old in text
-        text = text.replace(old, new)
-    (d / "scenario.toml").write_text(text + extra)
-    return d
+    return copy_scenario("cross4", tmp_path / "scen", old, new or "", extra)
 
 
 @pytest.mark.parametrize("old, new, extra, message", [
@@ -215,19 +205,13 @@ def test_out_holding_another_run_is_refused_unless_forced(tmp_path, capsys):
 def test_a_junction_the_car_cannot_drive_exits_2_naming_the_movement(edit, message, tmp_path, capsys):
     from nrtraffic.sumo.netbuild import build_network
 
-    src = SCENARIOS / "station_mill"
-    d = tmp_path / "scen"
-    d.mkdir()
-    for f in src.iterdir():
-        if f.is_file():
-            (d / f.name).write_bytes(f.read_bytes())
     if edit == "default_corner":
+        d = copy_scenario("station_mill", tmp_path / "scen")
         nod = d / "station_mill.nod.xml"
         nod.write_text(nod.read_text().replace(' radius="15"', ""))
         build_network(nod, d / "station_mill.edg.xml", d / "station_mill.net.xml")
     else:
-        toml = d / "scenario.toml"
-        toml.write_text(toml.read_text().replace("merging_zone_m = 46.0", "merging_zone_m = 30.0"))
+        d = copy_scenario("station_mill", tmp_path / "scen", "merging_zone_m = 46.0", "merging_zone_m = 30.0")
     out = tmp_path / "o"
     assert main(["run", str(d), "--out", str(out), "--duration", "5", "--no-progress"]) == 2
     assert message in capsys.readouterr().err
