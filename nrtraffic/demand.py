@@ -1,8 +1,14 @@
-"""Arrivals drawn from the run's random generator (pure: no SUMO, no I/O)."""
+"""The run's demand: arrivals drawn from its random generator, the departures of every vehicle,
+and the demand of a window (no SUMO run; :meth:`Demand.write` writes SUMO's route file)."""
 
 from __future__ import annotations
 
+import math
+from pathlib import Path
+
 import numpy as np
+
+from nrtraffic.scenario import TURNS
 
 
 def shifted_exponential_arrivals(rng: np.random.Generator, begin_s: float, end_s: float, mean_headway_s: float,
@@ -23,3 +29,223 @@ def shifted_exponential_arrivals(rng: np.random.Generator, begin_s: float, end_s
             break
         out.append(t)
     return np.array(out)
+
+
+SHARE_STREAM = 0x6875_6D61_6E  # the run seed's stream that draws which vehicles are controlled ("human")
+ROUTE_STREAM = 0x726F_757465  # the run seed's stream that draws a vehicle's turns after its first junction ("route")
+
+
+class Demand:
+    """The run's departures and the demand of a window, from the scenario and the junctions'
+    :class:`~nrtraffic.junction.Layout` (no SUMO run).
+
+    :meth:`departures` are ``(vehicle_id, route, depart_s, depart_speed_mps, depart_pos_m, type)``
+    in order of departure; ``route`` is a turning movement, or on a corridor a trip through several
+    junctions (:attr:`itineraries`); ``type`` is "auto" or "human".
+    """
+
+    def __init__(self, sc, layout, seed: int, duration_s: float):
+        self.sc, self.layout, self.seed, self.duration = sc, layout, int(seed), float(duration_s)
+        self.itineraries: dict[str, tuple[str, ...]] = {}
+        self._departures: list[tuple] | None = None
+
+    @classmethod
+    def of(cls, sc, seed: int | None = None, duration_s: float | None = None, network=None) -> "Demand":
+        """The demand of a run of ``sc`` (its seed and duration unless given), on its network or
+        ``network``: reads the network file, SUMO is not started."""
+        from nrtraffic.junction import Layout
+
+        return cls(sc, Layout(sc, network if network is not None else sc.network_path),
+                   sc.general.seed if seed is None else seed,
+                   sc.general.duration_s if duration_s is None else duration_s)
+
+    @property
+    def movement_table(self):
+        return self.layout.movement_table
+
+    def departures(self) -> list[tuple]:
+        """Departures from the run's random generator (drawn once): per approach, shifted-
+        exponential headways at the approach's rate (times the scale of each ``[[demand.intervals]]``
+        period); each vehicle draws its movement from the approach's turning movement counts
+        (``[[demand.flows]]``) or the global turning shares. ``type`` is "auto" or "human": in order
+        of departure, each vehicle draws a uniform number from its own stream of the seed (the
+        arrivals do not change with the share) and is a human driver when it is at least
+        ``demand.controlled_share``; a vehicle controlled at one share is controlled at every higher
+        one. ``[[vehicles]]`` keep their ``controlled``."""
+        if self._departures is None:
+            self._departures = self._draw()
+        return self._departures
+
+    def _draw(self) -> list[tuple]:
+        d = self.sc.demand
+        rng = np.random.default_rng(self.seed)
+        veh = []
+        if d.sumo_routes:
+            from nrtraffic.sumo.demandfile import read_sumo_demand
+
+            end = d.end_s if d.end_s > 0 else (self.duration if self.duration > 0 else math.inf)
+            by_edges = {(r[0], r[1]): name for name, (_, _, r) in self.movement_table.items()}
+            veh = read_sumo_demand(self.sc.base_dir / d.sumo_routes, by_edges, rng, end, d.entry_speed_mps)
+        rates = self.approach_rates() if not d.sumo_routes else {}
+        if rates:
+            end = d.end_s if d.end_s > 0 else (self.duration if self.duration > 0 else math.inf)
+            if d.max_vehicles == 0 and not math.isfinite(end):
+                raise ValueError("random demand needs demand.max_vehicles, demand.end_s or scenario.duration_s")
+            for appr, (rate, names, share) in rates.items():
+                if rate <= 0 or appr not in self.layout.entry_approaches:  # (a corridor's inner approach: shares only)
+                    continue
+                times = self._arrival_times(rng, rate, end)
+                picks = rng.choice(len(names), size=len(times), p=share / share.sum())
+                veh += [(f"{appr}.{k}", names[j], float(t), d.entry_speed_mps, -1.0)
+                        for k, (t, j) in enumerate(zip(times, picks))]
+        for v in self.sc.vehicles:
+            mv = v.approach
+            if mv not in self.movement_table:
+                raise ValueError(f"vehicle {v.id}: {mv!r} is not a movement ({', '.join(self.movement_table)})")
+            veh.append((v.id, mv, v.depart_s, v.depart_speed_mps, v.depart_pos_m))
+        veh.sort(key=lambda v: v[2])
+        if self.layout.next_junction:
+            veh = self._extend_routes(veh, rates)
+        u = np.random.default_rng([self.seed, SHARE_STREAM]).random(len(veh))
+        share = d.controlled_share
+        listed = {v.id for v in self.sc.vehicles}
+        return [(*v, "human" if (x >= share and v[0] not in listed) else "auto") for v, x in zip(veh, u)]
+
+    def _arrival_times(self, rng, rate: float, end: float) -> np.ndarray:
+        """One approach's departure times [s] at ``rate`` [veh/h], scaled by the intervals."""
+        d = self.sc.demand
+        if not d.intervals:
+            headway = 3600.0 / rate if d.flows else d.headway_s  # (as given: the same draws)
+            return shifted_exponential_arrivals(rng, d.begin_s, end, headway, d.min_headway_s, d.max_vehicles)
+        pieces, last = [], d.begin_s
+        cuts = d.breakpoints(d.begin_s, end)
+        for b, e in zip(cuts, cuts[1:]):
+            scale = d.scale_at(b)
+            if scale > 0:
+                left = d.max_vehicles - sum(len(x) for x in pieces) if d.max_vehicles else 0
+                if d.max_vehicles and left <= 0:
+                    break
+                got = shifted_exponential_arrivals(rng, max(b, last), e, 3600.0 / (rate * scale), d.min_headway_s,
+                                                   left)
+                pieces.append(got)
+                last = got[-1] if len(got) else last
+        return np.concatenate(pieces) if pieces else np.zeros(0)
+
+    def _extend_routes(self, veh: list[tuple], rates: dict) -> list[tuple]:
+        """A corridor: each departure's route continues through every controlled junction its last
+        movement leads into, with a turn drawn there (its own stream of the seed, in order of
+        departure) from that approach's shares (``[[demand.flows]]`` of the approach, as turning
+        movement counts, else the global turning shares). The route of a trip through several
+        junctions is named by its movements joined with "+" (:attr:`itineraries`)."""
+        rng = np.random.default_rng([self.seed, ROUTE_STREAM])
+        shares = {}
+        for appr in {a for a, _, _ in self.movement_table.values()}:
+            if appr in rates:
+                _, names, share = rates[appr]
+            else:
+                names = [n for n, (a, _, _) in self.movement_table.items() if a == appr]
+                share = self.default_shares(names)
+            if share.sum() <= 0:
+                share = np.ones(len(names))
+            shares[appr] = (names, share / share.sum())
+        out = []
+        for vid, first, *rest in veh:
+            legs = [first]
+            while len(legs) <= len(self.layout.junctions):
+                edge_out = self.movement_table[legs[-1]][2][-1]
+                if edge_out not in self.layout.next_junction:
+                    break
+                names, p = shares[edge_out]
+                legs.append(names[int(rng.choice(len(names), p=p))])
+            key = "+".join(legs)
+            self.itineraries[key] = tuple(legs)
+            out.append((vid, key, *rest))
+        return out
+
+    def route_edges(self, route: str) -> tuple[str, ...]:
+        """The edges of a demand route: a turning movement's, or a corridor trip's (:attr:`itineraries`)."""
+        legs = self.itineraries.get(route, (route,))
+        edges = list(self.movement_table[legs[0]][2])
+        for leg in legs[1:]:
+            edges += list(self.movement_table[leg][2][1:])
+        return tuple(edges)
+
+    def approach_rates(self) -> dict[str, tuple[float, list[str], np.ndarray]]:
+        """Per approach: its arrival rate [veh/h] (before the intervals' scale), its movements and
+        their shares of it; empty without random demand. Raises ValueError naming the key when
+        ``[[demand.flows]]`` names an approach or a turn the junction does not have."""
+        d = self.sc.demand
+        approaches: dict[str, list[str]] = {}
+        for name, (appr, _, _) in self.movement_table.items():
+            approaches.setdefault(appr, []).append(name)
+        out = {}
+        if d.flows:
+            known = {f.approach for f in d.flows}
+            unknown = sorted(known - set(approaches))
+            if unknown:
+                raise ValueError(f"demand.flows: {', '.join(unknown)} is not an approach of the junction "
+                                 f"({', '.join(approaches)})")
+            for f in d.flows:
+                names = approaches[f.approach]
+                turns = {self.movement_table[n][1]: n for n in names}
+                for key in TURNS:
+                    turn = "uturn" if key == "u_turn" else key
+                    if getattr(f, key) > 0 and turn not in turns:
+                        raise ValueError(f"demand.flows.{f.approach}.{key}: the approach has no such movement "
+                                         f"(it has {', '.join(sorted(turns))})")
+                share = np.array([getattr(f, "u_turn" if self.movement_table[n][1] == "uturn" else
+                                          self.movement_table[n][1], 0.0) for n in names], dtype=float)
+                out[f.approach] = (f.total_veh_h, names, share)
+            return out
+        if d.headway_s <= 0:
+            return {}
+        for appr, names in approaches.items():
+            out[appr] = (3600.0 / d.headway_s, names, self.default_shares(names))
+        return out
+
+    def default_shares(self, names: list[str]) -> np.ndarray:
+        """The global turning shares (``demand.turn_left``, ``turn_right``, the rest straight) of
+        turning movements ``names`` of one approach; equal shares where they give none."""
+        d = self.sc.demand
+        share = np.array([{"left": d.turn_left, "right": d.turn_right}.get(self.movement_table[n][1],
+                          1.0 - d.turn_left - d.turn_right) for n in names])
+        return share if share.sum() > 0 else np.ones(len(names))
+
+    def demand_veh_h(self, begin: float, end: float, approach: str | None = None) -> float:
+        """Mean demand into the junctions (or one approach) over ``[begin, end]`` [veh/h]: every
+        entry approach's rate times the intervals' scale, averaged over the window (not the sampled
+        arrivals); with ``demand.sumo_routes``, the file's departures in the window."""
+        if self.sc.demand.sumo_routes:
+            times = [t for _, mv, t, *_ in self.departures()
+                     if begin <= t <= end and (approach is None or self.movement_table[mv][0] == approach)]
+            return len(times) / (end - begin) * 3600.0 if end > begin else 0.0
+        if approach is not None and approach not in self.layout.entry_approaches:
+            return math.nan  # a corridor's inner approach: fed by the junction upstream, not by demand
+        rates = {a: r for a, r in self.approach_rates().items() if a in self.layout.entry_approaches}
+        if approach is not None:
+            rates = {a: r for a, r in rates.items() if a == approach}
+        total = sum(r for r, _, _ in rates.values())
+        d = self.sc.demand
+        lo, hi = max(begin, d.begin_s), min(end, d.end_s if d.end_s > 0 else end)
+        if end <= begin or hi <= lo:
+            return 0.0
+        cuts = d.breakpoints(lo, hi)
+        return total * sum((b - a) * d.scale_at(a) for a, b in zip(cuts, cuts[1:])) / (end - begin)
+
+    def write(self, path: Path, params, human=None) -> list[tuple]:
+        """The departures as a SUMO route file in nrtraffic's vehicle type (``params``: the
+        vehicle's :class:`~nrtraffic.vehicle.params.VehicleParams`; ``human``: the ``[human]``
+        section, for a human driver's type); returns them."""
+        from nrtraffic.sumo.adapter import VehicleType, write_routes
+
+        demand = self.departures()
+        v_max = max(self.sc.planning.v_max_mps, 1.0)
+        types = [VehicleType(length_m=params.length, width_m=params.width, max_speed_mps=v_max)]
+        if any(v[5] == "human" for v in demand):
+            h = self.sc.human
+            types.append(VehicleType("human", params.length, params.width, h.min_gap_m, h.accel_mps2, h.decel_mps2,
+                                     v_max, h.sigma, h.tau_s, h.speed_dev, h.car_follow_model))
+        routes = {k: v[2] for k, v in self.movement_table.items()}
+        routes.update({k: self.route_edges(k) for k in self.itineraries})
+        write_routes(path, types, routes, demand)
+        return demand

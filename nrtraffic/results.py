@@ -254,3 +254,303 @@ def read_fcd(path: Path) -> pd.DataFrame:
                              float(v.get("acceleration", "nan"))))
             el.clear()
     return pd.DataFrame(rows, columns=["t", "vehicle_id", "x", "y", "speed", "acceleration"])
+
+
+# ---------------------------------------------------------------------- the tables of a run
+def read_tripinfo(path: Path) -> dict[str, tuple[float, float, float]]:
+    """Per finished trip, SUMO's own timeLoss [s], number of stops (``waitingCount``: times its
+    speed fell below 0.1 m/s) and travel time (``duration``) [s] from tripinfo.xml (nothing where
+    it is missing, or unterminated by a run that stopped early)."""
+    if not path.is_file():
+        return {}
+    import xml.etree.ElementTree as ET
+
+    try:
+        return {t.get("id"): (float(t.get("timeLoss")), float(t.get("waitingCount")), float(t.get("duration")))
+                for t in ET.parse(path).getroot().iter("tripinfo")}
+    except ET.ParseError:
+        return {}
+
+
+def vehicle_table(records, paths: dict, trips: dict, control: bool) -> pd.DataFrame:
+    """``vehicles.csv``: one row per crossing (``records``, in order of departure, a corridor
+    trip's crossings in order) of a vehicle that entered the run, with its figures. ``trips``:
+    SUMO's tripinfo (:func:`read_tripinfo`); ``control``: a controlled run, where the scenario's
+    own SUMO-driven vehicles (scripted leaders) are left out."""
+    from nrtraffic.control import batch as kb
+    from nrtraffic.metrics import free_flow_delay
+
+    rows = []
+    for rec in sorted(records, key=lambda r: (r.t_depart, r.leg)):
+        if rec.status == "waiting" or (control and not rec.controlled and rec.driver != "human"):
+            continue  # (a SUMO-driven vehicle of the scenario's own, e.g. a scripted leader)
+        ap = paths.get(rec.movement)
+        delay = math.nan
+        if ap is not None and not math.isnan(rec.t_exit):
+            if math.isnan(rec.t_arrive):  # SUMO-driven: t_enter is when it crossed the entry
+                t_from, s_from = rec.t_enter, rec.s_enter
+            else:  # controlled: from crossing the entry, before any wait for its batch or a merge time
+                t_from, s_from = rec.t_arrive, rec.s_arrive
+            # plus the wait to enter the network at all, so that a control whose queues back up to
+            # the insertion point is not credited with the demand it kept out
+            delay = float(free_flow_delay(t_from, rec.t_exit, ap.s_exit - s_from, rec.v_free)) + rec.depart_delay
+        admitted = not math.isnan(rec.t_enter)
+        a = rec.acc.copy() if admitted else np.full(kb.N_ACC, np.nan)
+        if not rec.controlled:  # SUMO drove it: no tracking, no barriers
+            for k in (kb.ACC_MAX_ERR, kb.ACC_MAX_ERR_STEADY, kb.ACC_MAX_ERR_TRANSIENT, kb.ACC_MAX_LAT,
+                      kb.ACC_LONG_ACTIVE, kb.ACC_LAT_ACTIVE, kb.ACC_LONG_FALLBACK, kb.ACC_LAT_FALLBACK):
+                a[k] = math.nan
+        steps = a[kb.ACC_STEPS]
+
+        def fin(v):
+            return v if np.isfinite(v) else math.nan
+
+        rows.append({
+            "vehicle_id": rec.vehicle_id, "junction": rec.junction, "leg": rec.leg, "legs": len(rec.legs) or 1,
+            "approach": rec.approach, "driver": rec.driver,
+            "movement": ap.turn if ap is not None else "", "lane": rec.lane,
+            "t_arrive_s": rec.t_enter if math.isnan(rec.t_arrive) else rec.t_arrive,
+            "depart_delay_s": rec.depart_delay,
+            "t_enter_s": rec.t_enter, "v_enter_mps": rec.v_enter, "t_merge_planned_s": rec.t_merge_planned,
+            "t_merge_actual_s": rec.t_merge_actual, "t_exit_s": rec.t_exit, "delay_s": delay,
+            "max_tracking_error_m": a[kb.ACC_MAX_ERR], "steady_tracking_error_m": a[kb.ACC_MAX_ERR_STEADY],
+            "transient_tracking_error_m": a[kb.ACC_MAX_ERR_TRANSIENT], "max_lateral_dev_m": a[kb.ACC_MAX_LAT],
+            "min_bumper_gap_m": fin(rec.min_gap), "energy_u2": a[kb.ACC_ENERGY], "fuel_ml": a[kb.ACC_FUEL],
+            "predecessor": rec.predecessor or "", "relation": rec.relation, "binding": rec.binding,
+            "profile": rec.profile_kind, "plan_rear_end_intrusion_m": rec.plan_intrusion,
+            "v_merge_planned_mps": rec.v_merge_planned,
+            "min_center_distance_m": fin(a[kb.ACC_MIN_CENTER]), "max_abs_accel_mps2": a[kb.ACC_MAX_ABS_A],
+            "cbf_long_active_frac": a[kb.ACC_LONG_ACTIVE] / steps if steps else math.nan,
+            "cbf_lat_active_frac": a[kb.ACC_LAT_ACTIVE] / steps if steps else math.nan,
+            "cbf_long_fallbacks": a[kb.ACC_LONG_FALLBACK], "cbf_lat_fallbacks": a[kb.ACC_LAT_FALLBACK],
+            "min_h_long": fin(a[kb.ACC_MIN_H_LONG]), "min_h_lat": fin(a[kb.ACC_MIN_H_LAT]),
+            "plant_steps": steps if rec.controlled else 0.0,
+            "t_held_s": rec.t_held, "t_release_s": rec.t_release,
+            "sumo_time_loss_s": trips.get(rec.vehicle_id, (math.nan,))[0],
+            "stops": trips.get(rec.vehicle_id, (math.nan, math.nan))[1],
+            "status": rec.status,
+        })
+    return pd.DataFrame(rows, columns=VEHICLE_COLUMNS)
+
+
+def trip_table(veh: pd.DataFrame) -> pd.DataFrame:
+    """One row per trip: ``veh`` itself when every vehicle crosses one junction; on a corridor,
+    a vehicle's crossings added up (delay, energy, fuel), its first crossing's arrival and
+    wait to enter, and its last crossing's exit (NaN, as is the delay, until it has crossed
+    every junction of its trip)."""
+    if veh.empty or (veh["legs"] <= 1).all():
+        return veh
+    out = veh.drop_duplicates("vehicle_id", keep="first").set_index("vehicle_id")
+    last = veh.drop_duplicates("vehicle_id", keep="last").set_index("vehicle_id")
+    complete = (last["leg"] == last["legs"] - 1) & last["t_exit_s"].notna()
+    out["t_exit_s"] = last["t_exit_s"].where(complete)
+    sums = veh.groupby("vehicle_id", sort=False)[["delay_s", "energy_u2", "fuel_ml"]].sum(min_count=1)
+    out["delay_s"] = sums["delay_s"].where(complete)
+    out["energy_u2"], out["fuel_ml"] = sums["energy_u2"], sums["fuel_ml"]
+    return out.reset_index()[veh.columns]
+
+
+def corridor_table(veh: pd.DataFrame, trips: dict, n_junctions: int, w0: float, w1: float) -> dict:
+    """summary.json ``corridor`` (several junctions): the trips straight through every
+    controlled junction, per road they enter by (a direction of the arterial), that entered
+    their first control zone in the window ``[w0, w1]`` [s] and left the network: how many, their
+    mean travel time (SUMO's tripinfo duration, from insertion to arrival, plus the wait to be
+    inserted) [s], stops per vehicle (SUMO's waitingCount) and delay (the crossings' delays added
+    up) [s]."""
+    from nrtraffic import metrics
+
+    if n_junctions < 2 or veh.empty:
+        return {}
+    n = n_junctions
+    g = veh.groupby("vehicle_id", sort=False)
+    through = g["movement"].agg(lambda m: bool((m == "straight").all())) & (g["leg"].count() == n)
+    first = veh.drop_duplicates("vehicle_id").set_index("vehicle_id")
+    ok = through & first["t_arrive_s"].between(w0, w1) & first.index.isin(list(trips))
+    delay = g["delay_s"].sum(min_count=n)
+    out = {}
+    for appr in sorted(set(first.loc[ok[ok].index, "approach"])):
+        ids = [v for v in ok[ok].index if first.at[v, "approach"] == appr]
+        tt = [trips[v][2] + first.at[v, "depart_delay_s"] for v in ids]
+        out[appr] = {"vehicles": len(ids), "travel_time_s": float(np.mean(tt)),
+                     "stops_per_vehicle": float(np.mean([trips[v][1] for v in ids])),
+                     "delay_s": metrics.mean_or_none(delay[ids])}
+    return out
+
+
+def junction_table(veh: pd.DataFrame, junctions: dict, label: str, w0: float, w1: float) -> dict:
+    """summary.json ``junctions``: per controlled junction, the crossings that entered its
+    control zone in the window and left its merging zone: how many, their throughput [veh/h],
+    mean and 95th-percentile delay [s] and the HCM letter (by the signalised thresholds for
+    ``label`` a traffic light), and its zones."""
+    from nrtraffic import metrics
+
+    out = {}
+    hours = max(w1 - w0, 0.0) / 3600.0
+    for jid, j in junctions.items():
+        g = veh[(veh["junction"] == jid) & veh["t_arrive_s"].between(w0, w1) & veh["t_exit_s"].notna()]
+        mean = metrics.mean_or_none(g["delay_s"])
+        out[jid] = {"vehicles": int(len(g)), "throughput_veh_h": len(g) / hours if hours > 0 else None,
+                    "mean_delay_s": mean, "p95_delay_s": metrics.percentile_or_none(g["delay_s"], 95),
+                    "los": (metrics.level_of_service(mean, metrics.is_signalised(label))
+                            if mean is not None else None),
+                    "control_zone_m": j.control_zone_m, "merging_zone_m": j.merging_zone_m}
+    return out
+
+
+def driver_figures(adm: pd.DataFrame, done: pd.DataFrame, kind: dict[str, str], pairs: set) -> dict:
+    """Figures split by driver (``demand.controlled_share``): the share of human drivers among
+    the vehicles that entered the control zone in the window (``adm``), mean delay (of ``done``)
+    and smallest bumper gap of each kind, and the colliding ``pairs`` (SUMO's check or the own one)
+    by the kinds (``kind``: vehicle -> driver) of the two vehicles."""
+    from nrtraffic import metrics
+
+    n_pair = {"automated": 0, "mixed": 0, "human": 0}
+    for a, b in pairs:
+        ka, kb_ = kind.get(a, "automated"), kind.get(b, "automated")
+        n_pair[ka if ka == kb_ else "mixed"] += 1
+    out = {"human_share": float((adm["driver"] == "human").mean()) if len(adm) else None}
+    for d in ("automated", "human"):
+        out[f"vehicles_{d}"] = int((adm["driver"] == d).sum())
+        out[f"mean_delay_{d}_s"] = metrics.mean_or_none(done.loc[done["driver"] == d, "delay_s"])
+        out[f"min_bumper_gap_{d}_m"] = metrics.min_or_none(adm.loc[adm["driver"] == d, "min_bumper_gap_m"])
+    out.update({f"collisions_{k}": v for k, v in n_pair.items()})
+    return out
+
+
+def approach_table(vehicles: pd.DataFrame, queues: pd.DataFrame, approaches: list[str], demand_veh_h,
+                   t_from: float, t_to: float) -> pd.DataFrame:
+    """``approaches.csv``: per approach, its demand (``demand_veh_h(t_from, t_to, approach)``) and
+    served flow over the window [veh/h] (vehicles of the approach leaving the merging zone in it),
+    and its queue from SUMO's detectors (``queues``, :func:`parse_queues`) over the detector
+    periods inside the window: mean and maximum, in vehicles and metres."""
+    cols = ["approach", "demand_veh_h", "served_veh_h", "mean_queue_veh", "max_queue_veh", "mean_queue_m",
+            "max_queue_m"]
+    q = queues
+    if len(q):
+        q = q[(q["begin_s"] >= t_from - 1e-9) & (q["end_s"] <= t_to + 1e-9)]
+    hours = max(t_to - t_from, 0.0) / 3600.0
+    rows = []
+    for appr in approaches:
+        demand = demand_veh_h(t_from, t_to, appr) if hours > 0 else math.nan
+        served = vehicles[(vehicles["approach"] == appr) & vehicles["t_exit_s"].between(t_from, t_to)]
+        g = q[q["approach"] == appr] if len(q) else q
+        rows.append({"approach": appr, "demand_veh_h": demand,
+                     "served_veh_h": len(served) / hours if hours > 0 else math.nan,
+                     "mean_queue_veh": g["mean_queue_veh"].mean() if len(g) else math.nan,
+                     "max_queue_veh": g["max_queue_veh"].max() if len(g) else math.nan,
+                     "mean_queue_m": g["mean_queue_m"].mean() if len(g) else math.nan,
+                     "max_queue_m": g["max_queue_m"].max() if len(g) else math.nan})
+    return pd.DataFrame(rows, columns=cols)
+
+
+@dataclass
+class RunFacts:
+    """What the tables of a run are computed from, besides its records: who ran it and how long,
+    and what happened at the run's level. Times [s]."""
+
+    scenario: str
+    label: str  # what drove the vehicles: "nrtraffic" or the baseline's name
+    seed: int
+    sim_time_s: float
+    wall_time_s: float
+    warmup_s: float
+    measure_end_s: float | None
+    control: bool
+    barriers: tuple[bool, bool]  # longitudinal, lateral
+    collisions_sumo: set
+    collisions_geometric: set
+    collision_log: list
+    zone_cuts: dict
+    junctions: dict  # id -> Junction
+    waiting_to_enter: list  # desired departure times [s] of the vehicles SUMO could not insert yet
+    vehicles_spawned: int  # vehicles SUMO inserted
+    drivers: dict  # vehicle -> "automated" or "human"
+    wall_breakdown: dict
+    versions: tuple[str, str]  # nrtraffic's, SUMO's
+
+
+def run_summary(f: RunFacts, veh: pd.DataFrame, trips: dict, demand_veh_h, status: str,
+                error: BaseException | None) -> dict:
+    """summary.json of a run from its vehicle table ``veh`` (:func:`vehicle_table`), SUMO's
+    ``trips`` and the facts ``f``. ``demand_veh_h(begin, end)``: the demand of a window [veh/h]
+    (None where it cannot be known). The window: vehicles that entered the control zone between
+    ``warmup_s`` and ``measure_end_s`` (the end of the run where it is not set)."""
+    from nrtraffic import metrics
+    from nrtraffic.planning.coordinator import REAR_END_TOL_M
+
+    sim_t, wall = f.sim_time_s, f.wall_time_s
+    w0, w1 = f.warmup_s, (f.measure_end_s or sim_t)
+    w1 = min(w1, sim_t)
+    # the measurement window: vehicles that entered the control zone inside it
+    inside = veh["t_arrive_s"].between(w0, w1)
+    adm_all = veh[veh["t_enter_s"].notna() & inside]
+    # the trips (a corridor: a vehicle's crossings added up; one junction: its crossing)
+    trip = trip_table(veh)
+    done = trip[trip["t_exit_s"].notna() & trip["t_arrive_s"].between(w0, w1)]
+    # the vehicles' own figures (tracking, barriers, gaps) are the automated vehicles'; human
+    # drivers have theirs apart (driver_figures)
+    adm = adm_all[adm_all["driver"] == "automated"]
+    steps = adm["plant_steps"].sum()
+    window = max(w1 - w0, 0.0)
+    exits = int(trip["t_exit_s"].between(w0, w1).sum())
+    throughput = exits / window * 3600.0 if window > 0 else None
+    demand = demand_veh_h(w0, w1) if window > 0 and demand_veh_h is not None else 0.0
+    due = [t for t in f.waiting_to_enter if t <= sim_t]  # due to depart, but SUMO could not insert it
+    mean_delay = metrics.mean_or_none(done["delay_s"])
+    controlled = f.control
+    return {
+        "scenario": f.scenario,
+        "control": f.label,
+        "seed": f.seed,
+        "status": status,
+        "error": None if error is None else f"{type(error).__name__}: {error}",
+        "sim_time_s": sim_t,
+        "wall_time_s": wall,
+        "real_time_factor": sim_t / wall if wall > 0 else None,
+        "measure_from_s": w0,
+        "measure_to_s": w1,
+        "vehicles_spawned": f.vehicles_spawned,
+        "vehicles_admitted": int(len(adm_all)),
+        "vehicles_completed": int(len(done)),
+        "throughput_veh_h": throughput,
+        "demand_veh_h": demand or None,
+        "served_share": throughput / demand if demand and throughput is not None else None,
+        "control_zones_cut_m": {k: round(v, 3) for k, v in f.zone_cuts.items()},
+        "junctions": junction_table(veh, f.junctions, f.label, w0, w1),
+        "corridor": corridor_table(veh, trips, len(f.junctions), w0, w1),
+        "vehicles_waiting_to_enter": len(due),
+        "mean_wait_to_enter_s": float(np.mean([sim_t - t for t in due])) if due else None,
+        "mean_depart_delay_s": metrics.mean_or_none(done["depart_delay_s"]),
+        "mean_delay_s": mean_delay,
+        "los": (metrics.level_of_service(mean_delay, metrics.is_signalised(f.label))
+                if mean_delay is not None else None),
+        "mean_sumo_time_loss_s": metrics.mean_or_none(done["sumo_time_loss_s"]),
+        "vehicles_held": int((veh.loc[inside, "t_held_s"] > 0).sum()),
+        "plans_rear_end_constrained": int((adm["profile"] == "rear_end").sum()),
+        "plans_rear_end_unresolved": int((adm["plan_rear_end_intrusion_m"] > REAR_END_TOL_M).sum()),
+        "p95_delay_s": metrics.percentile_or_none(done["delay_s"], 95),
+        "collisions": len(f.collisions_sumo),
+        "collisions_geometric": len(f.collisions_geometric),
+        "collision_events": f.collision_log[:100],
+        "min_center_distance_m": metrics.min_or_none(adm["min_center_distance_m"]),
+        "min_bumper_gap_m": metrics.min_or_none(adm["min_bumper_gap_m"]),
+        "max_tracking_error_m": metrics.max_or_none(adm["max_tracking_error_m"]),
+        "steady_tracking_error_m": metrics.max_or_none(adm["steady_tracking_error_m"]),
+        "transient_tracking_error_m": metrics.max_or_none(adm["transient_tracking_error_m"]),
+        "max_lateral_dev_m": metrics.max_or_none(adm["max_lateral_dev_m"]),
+        "max_abs_accel_mps2": metrics.max_or_none(adm["max_abs_accel_mps2"]),
+        "mean_energy_u2": metrics.mean_or_none(done["energy_u2"]),
+        "mean_fuel_ml": metrics.mean_or_none(done["fuel_ml"]),
+        # what only a controlled run has: null for a baseline
+        "barriers_longitudinal": bool(f.barriers[0]) if controlled else None,
+        "barriers_lateral": bool(f.barriers[1]) if controlled else None,
+        "cbf_long_active_frac": float((adm["cbf_long_active_frac"] * adm["plant_steps"]).sum() / steps) if steps else None,
+        "cbf_lat_active_frac": float((adm["cbf_lat_active_frac"] * adm["plant_steps"]).sum() / steps) if steps else None,
+        "cbf_long_fallbacks": int(adm["cbf_long_fallbacks"].sum()) if controlled else None,
+        "cbf_lat_fallbacks": int(adm["cbf_lat_fallbacks"].sum()) if controlled else None,
+        **driver_figures(adm_all, done, f.drivers, f.collisions_sumo | f.collisions_geometric),
+        "wall_time_breakdown_s": {**f.wall_breakdown,
+                                  "qp": sum(j.coord.qp_wall_s for j in f.junctions.values() if j.coord is not None)},
+        "nrtraffic_version": f.versions[0],
+        "sumo_version": f.versions[1],
+    }

@@ -44,12 +44,12 @@ def coordinate_signals(sc: scenario_mod.Scenario, net: Path, sdir: Path, seed: i
 
     import sumo
 
-    from nrtraffic.engine import Engine
+    from nrtraffic.demand import Demand
     from nrtraffic.sumo.netbuild import SumoToolError
 
     with tempfile.TemporaryDirectory() as tmp:
-        eng = Engine(sc, Path(tmp), seed=seed, duration_s=duration_s)
-        demand = eng.write_demand(Path(tmp) / "demand.rou.xml")
+        eng = Demand.of(sc, seed=seed, duration_s=duration_s)
+        demand = eng.departures()
         # the tool reads vehicles with their routes inside them
         lines = ["<routes>"]
         for vid, route, depart, *_ in demand:

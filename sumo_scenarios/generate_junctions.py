@@ -15,11 +15,10 @@ Run:  python sumo_scenarios/generate_junctions.py
 from __future__ import annotations
 
 import math
-import tempfile
 from pathlib import Path
 
 from nrtraffic import scenario
-from nrtraffic.engine import Engine
+from nrtraffic.demand import Demand
 from nrtraffic.sumo.netbuild import build_network
 
 HERE = Path(__file__).resolve().parent
@@ -67,8 +66,7 @@ def write_view(name: str, network: str = "net.net.xml") -> None:
     # the scenario's demand for its own seed and duration, to watch under SUMO's own driving
     # (the junction as netconvert built it); runs are driven by `nrtraffic run`
     sc = scenario.load(d / "scenario.toml")
-    with tempfile.TemporaryDirectory() as tmp:
-        Engine(sc, Path(tmp)).write_demand(d / "demand.rou.xml")
+    Demand.of(sc).write(d / "demand.rou.xml", sc.vehicle.params())
     (d / f"{name}.sumocfg").write_text(
         "<configuration>\n    <!-- sumo-gui -c: the network with the scenario's demand for its seed, driven by SUMO;\n"
         "         runs are driven by `nrtraffic run` (make nets writes this file and demand.rou.xml) -->\n"

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from nrtraffic import scenario
+from nrtraffic.demand import Demand
 from nrtraffic.engine import Engine
 from nrtraffic.planning.coordinator import Coordinator, CoordinatorSettings
 from nrtraffic.planning.crossing import CrossingBounds, human_crossing, speed_from_rest, travel_time
@@ -22,9 +23,7 @@ CROSS4 = Path(__file__).resolve().parents[1] / "sumo_scenarios" / "cross4"
 
 def _demand(share, seed=3, duration=600.0):
     sc = scenario.load(CROSS4, [f"demand.controlled_share={share}", f"scenario.duration_s={duration}"])
-    eng = Engine(sc, Path("/nonexistent"), seed=seed)
-    eng._movement_table()
-    return eng._demand()
+    return Demand.of(sc, seed=seed).departures()
 
 
 def test_shares_are_drawn_by_seed_and_nested():

@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from nrtraffic import metrics, scenario
-from nrtraffic.engine import Engine
+from nrtraffic.demand import Demand
 from nrtraffic.scenario import ScenarioError
 from nrtraffic.sumo.demandfile import DemandFileError, read_sumo_demand
 from nrtraffic.sumo.netbuild import sumo_binary
@@ -27,9 +27,7 @@ FLOWS = ('demand.flows=[{approach="N_in", straight=500.0, left=60.0, right=40.0}
 
 def _engine(overrides, tmp_path, duration=3600.0, seed=5):
     sc = scenario.load(CROSS4, overrides)
-    e = Engine(sc, tmp_path, seed=seed, duration_s=duration)
-    e._movement_table()  # reads the network; SUMO is not started
-    return e
+    return Demand.of(sc, seed=seed, duration_s=duration)  # reads the network; SUMO is not started
 
 
 @pytest.mark.parametrize("override, message", [
@@ -59,16 +57,16 @@ def test_demand_and_window_keys_are_validated_by_name(override, message):
 
 def test_flows_name_approaches_and_turns_the_junction_has(tmp_path):
     with pytest.raises(ValueError, match="X_in is not an approach of the junction"):
-        _engine(['demand.flows=[{approach="X_in", straight=100.0}]'], tmp_path)._demand()
+        _engine(['demand.flows=[{approach="X_in", straight=100.0}]'], tmp_path).departures()
     with pytest.raises(ValueError, match="demand.flows.N_in.u_turn: the approach has no such movement"):
-        _engine(['demand.flows=[{approach="N_in", u_turn=10.0}]'], tmp_path)._demand()
+        _engine(['demand.flows=[{approach="N_in", u_turn=10.0}]'], tmp_path).departures()
 
 
 def test_flows_give_each_movement_its_count(tmp_path):
     """Four hours of arrivals: every movement's count is within 4 standard deviations of its flow
     (Poisson-like arrivals: sd ~ sqrt(count)); the approaches not listed get none."""
     e = _engine([FLOWS], tmp_path, duration=4 * 3600.0)
-    dep = e._demand()
+    dep = e.departures()
     counts = pd.Series([mv for _, mv, *_ in dep]).value_counts()
     flows = {"N_in": (60, 500, 40), "S_in": (60, 500, 40), "E_in": (30, 100, 20), "W_in": (30, 100, 20)}
     for appr, (left, straight, right) in flows.items():
@@ -78,7 +76,7 @@ def test_flows_give_each_movement_its_count(tmp_path):
     assert e.demand_veh_h(0.0, 3600.0) == pytest.approx(1500.0)
     # the old keys still work: one rate for every approach, turns by the global shares (cross4: 20 %
     # left, 20 % right), each count within 4 sd of its binomial expectation
-    old = _engine(["demand.rate_veh_h=400.0"], tmp_path, duration=4 * 3600.0)._demand()
+    old = _engine(["demand.rate_veh_h=400.0"], tmp_path, duration=4 * 3600.0).departures()
     turns = pd.Series([mv.split(".")[1] for _, mv, *_ in old]).value_counts()
     n = len(old)
     assert abs(n - 4 * 4 * 400) < 4 * math.sqrt(4 * 4 * 400)
@@ -92,7 +90,7 @@ def test_an_interval_scales_the_demand_inside_it(tmp_path):
     is the integral of the rate: 4 x 400 x (1800 + 2 x 1800) / 3600 = 2400 veh/h."""
     e = _engine(["demand.rate_veh_h=400.0", "demand.intervals=[{begin_s=1800.0, end_s=3600.0, scale=2.0}]"],
                 tmp_path, duration=3600.0)
-    t = np.array([d[2] for d in e._demand()])
+    t = np.array([d[2] for d in e.departures()])
     before, inside = (t < 1800).sum(), (t >= 1800).sum()
     assert abs(before - 800) < 4 * math.sqrt(800) and abs(inside - 1600) < 4 * math.sqrt(1600)
     assert e.demand_veh_h(0.0, 3600.0) == pytest.approx(2400.0)
@@ -345,7 +343,8 @@ def test_scenario_folder_opens_with_its_demand(name, tmp_path):
     scenario's demand for its seed (kept in sync: `make nets` writes it), and SUMO inserts it."""
     folder = SCENARIOS / name
     fresh = tmp_path / "demand.rou.xml"
-    Engine(scenario.load(folder / "scenario.toml"), tmp_path).write_demand(fresh)
+    sc = scenario.load(folder / "scenario.toml")
+    Demand.of(sc).write(fresh, sc.vehicle.params())
     assert fresh.read_text() == (folder / "demand.rou.xml").read_text()
     proc = subprocess.run([sumo_binary("sumo"), "-c", str(folder / f"{name}.sumocfg"), "--end", "60",
                            "--no-step-log", "true", "--duration-log.statistics", "true"],

@@ -67,7 +67,7 @@ N_CFG = 23  # CFG_LAG_TAU: the actuator lag's time constant [s] (0: none); CFG_F
 NO_LEADER = -1
 EXTERNAL_LEADER = -2
 
-# the qpsolvers backend used when cfg[CFG_QP_MODE] == 1 (set by the engine)
+# the qpsolvers backend used when cfg[CFG_QP_MODE] == 1 (set by nrtraffic.control.kernel.kernel_config)
 QP_SOLVER = ["osqp"]
 
 

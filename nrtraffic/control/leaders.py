@@ -1,5 +1,5 @@
 """The leader of each controlled vehicle, compiled: the nearest vehicle ahead on the lanes of its own
-path (:meth:`nrtraffic.engine.Engine._leaders` says which vehicles count).
+path (:func:`nrtraffic.measure.leaders` says which vehicles count).
 
 Lanes are integers here: every lane on some path has an index, and each path is a run of
 ``(lane, s at the lane's start [m], path length per SUMO lane metre)`` in the packed arrays
@@ -84,7 +84,7 @@ def find_leaders(lane_id, lane_pos, x, y, psi, speed, accel, rows, path_id, pl_o
 
 def pack_path_lanes(movements) -> tuple[dict, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``(lane index, pl_off, pl_lane, pl_start, pl_scale)`` of ``movements`` (in their order), each
-    with ``lanes`` and ``lane_offset`` like :class:`nrtraffic.engine.Movement`."""
+    with ``lanes`` and ``lane_offset`` like :class:`nrtraffic.junction.Movement`."""
     index: dict[str, int] = {}
     off, lanes, start, scale = [0], [], [], []
     for m in movements:

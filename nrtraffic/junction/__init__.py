@@ -1,9 +1,17 @@
-"""One controlled junction: its movements, zones, relations, conflict areas and coordinator.
+"""The controlled junctions of a run: what they are, how they are built from the network, and
+how they admit vehicles.
 
 A run holds one :class:`Junction` per controlled junction (``[[junctions]]``; one for ``[junction]
 id``, and one without a centre for a plain road of ``[[approaches]]``). Movement and lane names are
-the network's, so they are unique across the junctions of a run: the engine keeps the movements'
+the network's, so they are unique across the junctions of a run: the run keeps the movements'
 paths in one table (the kernel reads them all) and each junction lists its own.
+
+- :class:`Layout`: the junctions and their movements as the network file gives them, before SUMO
+  starts (the demand's unit, the turning movement, and its lanes);
+- :mod:`nrtraffic.junction.build`: once SUMO has read the network, each movement's path and zones,
+  the stop lines, the relations and conflict areas, the queue detectors;
+- :mod:`nrtraffic.junction.admission` and :mod:`nrtraffic.junction.humans`: each step, who is
+  scheduled, batched, held, started from rest; human drivers' reserved crossings.
 """
 
 from __future__ import annotations
@@ -14,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from nrtraffic.geometry import LanePath
+from nrtraffic.sumo.network import edge_nodes, junction_movements
 from nrtraffic.planning.coordinator import Coordinator
 
 
@@ -75,3 +84,51 @@ class Junction:
         """Whether points ``xy`` (n x 2) [m] lie inside the merging zone's disc."""
         d = np.hypot(xy[:, 0] - self.xy[0], xy[:, 1] - self.xy[1])
         return d <= self.merging_zone_m / 2.0
+
+
+class Layout:
+    """The run's junctions and movements known from the network file alone (SUMO is not started).
+
+    ``junctions``: id -> :class:`Junction` (its zones; its movements, relations and coordinator
+    follow once SUMO runs); ``movement_table``: turning movement (``<approach>.<turn>``, the
+    demand's unit) -> (approach, turn, route edges); ``lane_movements``: turning movement -> its
+    lane-level movements ``(entry lane, name, entry lane index, exit lane index)``, one per lane
+    that serves it (a one-lane approach: one, of the same name); ``movement_junction``: turning
+    movement -> the junction it crosses; ``next_junction`` / ``upstream_junction``: edge -> the
+    controlled junction it leads into / comes from, where there is one (a corridor);
+    ``entry_approaches``: where demand enters (the approaches that do not come from another
+    controlled junction).
+    """
+
+    def __init__(self, sc, network_path):
+        self.movement_table: dict[str, tuple[str, str, tuple[str, ...]]] = {}
+        self.lane_movements: dict[str, list[tuple[str, str, int, int | None]]] = {}
+        self.movement_junction: dict[str, str] = {}
+        self.junctions: dict[str, Junction] = {}
+        self.next_junction: dict[str, str] = {}
+        self.upstream_junction: dict[str, str] = {}
+        specs = sc.controlled_junctions()
+        for j in specs:
+            moves, xy = junction_movements(network_path, j.id)
+            self.junctions[j.id] = Junction(j.id, xy, j.control_zone_m, j.merging_zone_m)
+            for m in moves:
+                self.movement_table[m.route] = (m.in_edge, m.turn, (m.in_edge, m.out_edge))
+                self.lane_movements.setdefault(m.route, []).append((m.lane, m.name, m.in_lane, m.out_lane))
+                self.movement_junction[m.route] = j.id
+        if len(specs) > 1:
+            nodes = edge_nodes(network_path)
+            self.next_junction = {e: to for e, (_, to) in nodes.items() if to in self.junctions}
+            self.upstream_junction = {e: fr for e, (fr, _) in nodes.items() if fr in self.junctions}
+        if not specs:
+            z = sc.zones
+            self.junctions[""] = Junction("", None, z.control_zone_m, z.merging_zone_m)
+            for a in sc.approaches:
+                self.movement_table[a.name] = (a.name, "through", a.route)
+                self.lane_movements[a.name] = [(f"{a.route[0]}_0", a.name, 0, None)]
+                self.movement_junction[a.name] = ""
+        self.entry_approaches = {a for a, _, _ in self.movement_table.values() if a not in self.upstream_junction}
+
+    @property
+    def approaches(self) -> list[str]:
+        """Every approach of every junction, sorted."""
+        return sorted({a for a, _, _ in self.movement_table.values()})

@@ -429,3 +429,16 @@ class SumoSession:
     def collisions(self) -> list[tuple[str, str, str]]:
         """Collisions SUMO detected in the last step: (collider, victim, type)."""
         return [(c.collider, c.victim, c.type) for c in self.traci.simulation.getCollisions()]
+
+
+def drive_alone(net: Path, routes: Path, step_length_s: float, seed: int, until_s: float,
+                lateral_resolution_m: float = 0.0) -> float:
+    """SUMO alone on a route file, every vehicle driven by SUMO, for ``until_s`` simulated seconds
+    (the reference a co-simulation's speed is measured against); returns the wall time [s]."""
+    import time
+
+    t0 = time.perf_counter()
+    with SumoSession(net, routes, step_length_s, seed, lateral_resolution_m) as sumo:
+        while sumo.time < until_s - 1e-9:
+            sumo.step()
+    return time.perf_counter() - t0

@@ -1,0 +1,382 @@
+"""Admission at the controlled junctions: each step, which vehicles in a control zone are
+scheduled, batched, held or started from rest, and the hand-over from one junction to the next.
+
+A vehicle SUMO inserts (``waiting``) is ``approaching``; once its centre of gravity crosses the
+control-zone entry the coordinator of its junction is asked for a merge time, one vehicle at a time
+(``policy = "fifo"``) or a batch of them (``"batch"``: ``batched`` until the batch closes). With a
+merge time it is ``controlled``: the kernel drives it on its energy-optimal profile. Without one it
+is ``held``: SUMO stops it at the entry and it is asked for again. A vehicle behind a human driver
+on its lane, whose crossing is not reserved yet, waits for it: SUMO stops it at the stop line, and
+standing there its start from rest is reserved (``starting``). Released past the merging zone, a
+vehicle whose trip goes on to another controlled junction starts a new record there.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from nrtraffic.control import batch as kb
+from nrtraffic.control.table import N_PROFILE_SEG
+from nrtraffic.junction import humans
+from nrtraffic.lifecycle import State, VehicleRecord
+from nrtraffic.planning.coordinator import Assignment, Request, ScheduleInfeasible
+from nrtraffic.planning.crossing import CrossingBounds
+from nrtraffic.planning.profiles import from_rest
+from nrtraffic.vehicle.fuel import fuel_rate
+
+# slack of a reserved start from rest of a controlled vehicle (its tracking error, in time) [s]
+FROM_REST_SLACK_S = 0.3
+
+
+class Admission:
+    """The admission decisions of every controlled junction of a run (``st``: its
+    :class:`~nrtraffic.state.RunState`; ``departures``: vehicle id -> ``(route, depart_s,
+    speed_mps)`` of the demand, ``human_ids`` its human drivers, ``listed`` the ``[[vehicles]]``)."""
+
+    def __init__(self, st, departures: dict, human_ids: set, listed: dict):
+        self.st = st
+        self.scheduled = departures  # not inserted yet; a vehicle's record is made when SUMO inserts it
+        self.human_ids = human_ids
+        self.listed = listed
+        self.batch = st.sc.coordinator.policy == "batch"
+
+    # ------------------------------------------------------------ into the run
+    def depart(self, vid: str, dt: float) -> None:
+        """A vehicle SUMO has just inserted: its record, and on its way (``approaching`` under
+        control; ``sumo``, or a human driver sent to its stop line, otherwise)."""
+        st = self.st
+        if vid not in self.scheduled:  # not of the demand
+            return
+        trip, t, speed = self.scheduled.pop(vid)
+        lv = self.listed.get(vid)
+        human = vid in self.human_ids
+        legs = st.itineraries.get(trip, (trip,))
+        if any(len(st.layout.lane_movements[leg]) > 1 for leg in legs):
+            # SUMO inserted it on the least occupied lane its route can take (departLane="best"); it
+            # keeps that lane, which decides its lane-level movement
+            st.sumo.keep_lane(vid)
+        lane, mv = self.lane_movement(vid, legs[0])
+        rec = st.records[vid] = VehicleRecord(
+            vid, st.layout.movement_table[legs[0]][0], t, movement=mv, route=legs[0], lane=lane, v_free=speed,
+            controlled=(lv.controlled if lv else True) and st.control and not human,
+            driver="human" if human else "automated",
+            heading_offset=lv.entry_heading_offset_rad if lv else 0.0,
+            speed_profile=lv.speed_profile if lv else (), junction=st.layout.movement_junction[legs[0]], legs=legs)
+        st.life.add(vid, rec.junction)
+        # SUMO's departDelay, less the part that is only the wait for the next step
+        desired = round(rec.t_depart, 2)  # as the route file gives it
+        step_wait = math.ceil(desired / dt - 1e-9) * dt - desired
+        rec.depart_delay = max(0.0, st.sumo.depart_delay(vid) - step_wait)
+        if rec.controlled:
+            st.life.move(vid, State.APPROACHING)
+            st.sumo.colour(vid, "approaching")
+            st.sumo.hold_speed(vid, st.sumo.speed(vid))
+        else:
+            st.life.move(vid, State.SUMO)
+            if rec.driver == "human" and st.control:
+                humans.to_stop_line(st, vid)
+
+    def lane_movement(self, vid: str, route: str) -> tuple[str, str]:
+        """``(entry lane, lane-level movement)`` of a vehicle on turning movement ``route``: the
+        one of the lane SUMO has it on (the first where it is on none of them yet)."""
+        lanes = self.st.layout.lane_movements[route]
+        if len(lanes) == 1:
+            return lanes[0][:2]
+        here = self.st.sumo.lane_position(vid)[0]
+        return next(((ln, name) for ln, name, _, _ in lanes if ln == here), lanes[0][:2])
+
+    def next_leg(self, vid: str) -> bool:
+        """A vehicle that left a junction's merging zone with a next junction on its trip (a
+        corridor): its crossing is kept (``crossings``) and a new record starts for the next one,
+        which that junction admits when the vehicle enters its control zone (SUMO drives it until
+        then; a human driver is told to stop at that junction's stop line). False when the trip
+        has no next junction."""
+        st = self.st
+        rec = st.records[vid]
+        if rec.leg + 1 >= len(rec.legs):
+            return False
+        st.crossings.append(rec)
+        route = rec.legs[rec.leg + 1]
+        lane, mv = self.lane_movement(vid, route)
+        new = st.records[vid] = VehicleRecord(
+            vid, st.layout.movement_table[route][0], rec.t_depart, movement=mv, route=route, lane=lane,
+            v_free=rec.v_free, controlled=rec.controlled, driver=rec.driver, speed_profile=rec.speed_profile,
+            junction=st.layout.movement_junction[route], legs=rec.legs, leg=rec.leg + 1)
+        if new.controlled:
+            st.life.move(vid, State.APPROACHING, junction=new.junction)
+            st.sumo.colour(vid, "approaching")
+        elif new.driver == "human" and st.control:
+            st.reservations.pop(vid, None)  # (its last crossing's, spent)
+            humans.to_stop_line(st, vid)
+        else:
+            st.life.move(vid, State.SUMO, junction=new.junction)
+        return True
+
+    # ------------------------------------------------------------ each step
+    def step(self, dt: float) -> None:
+        """This step's admission at every junction: reserved starts that have come, then the
+        vehicles in the control zones scheduled (one by one, or by batch)."""
+        self.start()
+        if self.batch:
+            self.admit_batch(dt)
+            return
+        life = self.st.life
+        blocked: set[str] = set()  # lanes whose first waiting vehicle could not be admitted
+        for vid in life.members(State.APPROACHING, State.HELD):
+            rec = self.st.records[vid]
+            if rec.lane in blocked:
+                continue
+            if ((rec.hindered or self.blocked_ahead(vid)) and self.request(vid, entry_only=True)
+                    and self.hindered(vid)):  # waits for a human ahead, or starts from the stop line
+                if life.state(vid) is not State.STARTING:
+                    blocked.add(rec.lane)
+                continue
+            state = self.try_admit(vid)
+            if state == "held":
+                blocked.add(rec.lane)
+                rec.t_held += dt
+        self.account_waiting(life.members(State.HELD) + life.members(State.STARTING), dt)
+
+    def request(self, vid: str, entry_only: bool = False):
+        """What a vehicle whose centre of gravity crossed the control-zone entry asks of the
+        coordinator, from SUMO's view of it now: ``(Request, x0, s, lateral offset)``; None while it
+        has not crossed. ``entry_only``: only whether it crossed (True or None)."""
+        st = self.st
+        rec = st.records[vid]
+        mv = st.paths[rec.movement]
+        tab = st.snap
+        k = tab.row.get(vid)
+        if k is None:
+            return None
+        lane, pos = tab.lane[k], float(tab.lane_pos[k])
+        if lane not in mv.lane_offset:
+            return None
+        cg = st.params.cg_to_front
+        s_cg = mv.s_of(lane, pos) - cg
+        if s_cg < mv.s_control - 1e-6:
+            return None
+        if math.isnan(rec.t_arrive):
+            rec.t_arrive, rec.s_arrive = st.t, s_cg
+        if entry_only:
+            return True
+        xf, yf, psi = float(tab.x[k]), float(tab.y[k]), float(tab.psi[k])
+        v = float(tab.speed[k])
+        x0 = np.array([xf - cg * math.cos(psi), yf - cg * math.sin(psi), v, 0.0, psi + rec.heading_offset, 0.0])
+        s_proj, lat0 = mv.path.project(x0[:2])
+        D = mv.s_merge - s_proj
+        v_lim = mv.v_limit
+        if rec.hindered:  # slowed behind a human: cross no faster than half the bound's acceleration reaches
+            v_lim = min(v_lim, math.sqrt(v * v + st.sc.planning.u_max_mps2 * max(D, 0.0)))
+        req = Request(vid, rec.lane, st.t, v, D, rec.movement, mv.s_exit - mv.s_merge, v_lim, rec.hindered,
+                      rec.approach in st.layout.upstream_junction)
+        return req, x0, s_proj, lat0
+
+    def try_admit(self, vid: str) -> str:
+        """Admit a vehicle whose centre of gravity crossed the control-zone entry: "waiting" (not
+        there yet), "admitted", or "held" (no merge time meets the bounds: SUMO stops it at the
+        entry and admission is tried again every step, so that the lane's FIFO order is kept)."""
+        got = self.request(vid)
+        if got is None:
+            return "waiting"
+        req = got[0]
+        try:
+            if req.D <= 0.5:
+                raise ScheduleInfeasible(f"vehicle {vid} is already at the merging zone")
+            asg = self.st.junctions[self.st.records[vid].junction].coord.schedule_request(req)
+        except ScheduleInfeasible:
+            self.hold(vid)
+            return "held"
+        self.admit(got, asg)
+        return "admitted"
+
+    def admit_batch(self, dt: float) -> None:
+        """``policy = "batch"``: vehicles that crossed the control-zone entry wait (driven on by
+        SUMO at their speed) until ``batch_window_s`` after the first of them; then all waiting
+        are scheduled together (:meth:`Coordinator.schedule_batch`) from their state at that
+        moment. Held ones (no feasible merge time) are stopped by SUMO and wait for the next batch,
+        which closes a window after they were held."""
+        st = self.st
+        for vid in st.life.members(State.APPROACHING):
+            if self.request(vid, entry_only=True):
+                j = st.junctions[st.records[vid].junction]
+                if not self.pending(j):
+                    j.batch_closes = st.t + st.sc.coordinator.batch_window_s
+                st.life.move(vid, State.BATCHED)
+                st.sumo.colour(vid, "pending")
+        for j in st.junctions.values():
+            self.close_batch(j, dt)
+        self.account_waiting(st.life.members(State.STARTING), dt)
+
+    def pending(self, j) -> list[str]:
+        """Junction ``j``'s batch: its vehicles waiting for it to close (held ones too)."""
+        return self.st.life.members(State.BATCHED, State.HELD, junction=j.id)
+
+    def close_batch(self, j, dt: float) -> None:
+        """Junction ``j``'s batch: its waiting vehicles accounted for, and all scheduled together
+        when the batch closes (:meth:`admit_batch`)."""
+        st = self.st
+        # behind a human: checked each step, until its start is reserved (then it leaves the batch)
+        waiting = {vid for vid in self.pending(j) if self.hindered(vid)}
+        pending = self.pending(j)
+        for vid in pending:
+            if st.life.state(vid) is State.HELD:
+                st.records[vid].t_held += dt
+        self.account_waiting(pending, dt)
+        if not pending or st.t < j.batch_closes - 1e-9:
+            return
+        got = {}
+        for vid in pending:
+            if vid in waiting:  # waits for a human ahead, or for its stop at the stop line
+                continue
+            g = self.request(vid)
+            if g is not None and g[0].D > 0.5:
+                got[vid] = g
+            else:
+                self.hold(vid)  # at the zone already, or no longer seen on its path
+        results = j.coord.schedule_batch([got[v][0] for v in pending if v in got])
+        held = [req.vehicle_id for req, a in results if isinstance(a, ScheduleInfeasible)]
+        for req, a in results:
+            if not isinstance(a, ScheduleInfeasible):
+                self.admit(got[req.vehicle_id], a)
+        for vid in held:
+            self.hold(vid)
+        j.batch_closes = st.t + st.sc.coordinator.batch_window_s if self.pending(j) else math.inf
+
+    def account_waiting(self, vids: list[str], dt: float) -> None:
+        """Energy and fuel of vehicles in the control zone that SUMO still drives (waiting for their
+        batch, or held), from SUMO's speed and acceleration; carried over when they are admitted."""
+        tab = self.st.snap
+        for vid in vids:
+            k = tab.row.get(vid)
+            if k is None:
+                continue
+            v, a = float(tab.speed[k]), float(tab.accel[k])
+            acc = self.st.records[vid].acc
+            acc[kb.ACC_ENERGY] += 0.5 * a * a * dt
+            acc[kb.ACC_FUEL] += fuel_rate(v, a) * dt
+
+    def hold(self, vid: str) -> None:
+        """No merge time for a vehicle in the control zone now: SUMO stops it at the control-zone
+        entry and admission is tried again. Where that entry is the hand-over from a junction
+        upstream (a corridor), stopping there would block that junction's exit: SUMO drives it on
+        instead, to a stop short of the merging zone, and it is scheduled on the way or started
+        from that stop, as a car queued behind a human driver is (:meth:`hindered`)."""
+        st = self.st
+        rec = st.records[vid]
+        if rec.hindered:  # it drives on to its stop at the stop line (hindered)
+            return
+        if rec.approach in st.layout.upstream_junction:
+            self.wait_at_stop_line(vid, "held")
+            return
+        if st.life.state(vid) is not State.HELD:
+            st.life.move(vid, State.HELD)
+            st.sumo.hold_speed(vid, 0.0)
+            st.sumo.colour(vid, "held")
+
+    def admit(self, got, asg) -> None:
+        """Take a scheduled vehicle over: from now on the kernel drives it."""
+        st = self.st
+        req, x0, s_proj, lat0 = got
+        vid = req.vehicle_id
+        rec = st.records[vid]
+        if rec.hindered and st.life.state(vid) is not State.STARTING:  # scheduled on the move after all: no stop
+            st.sumo.cancel_stop(vid)
+        st.life.move(vid, State.CONTROLLED)
+        st.sumo.take_over(vid)
+        st.sumo.colour(vid, "controlled")
+        rec.t_enter, rec.v_enter, rec.s_enter = st.t, req.v0, s_proj
+        rec.t_merge_planned, rec.v_merge_planned = asg.t_merge, asg.profile.v_m
+        rec.predecessor, rec.relation, rec.binding = asg.predecessor, asg.relation, asg.binding
+        rec.profile_kind = asg.profile.kind
+        rec.plan_intrusion = asg.plan_intrusion_m
+        # (with what it used while SUMO drove it in the control zone)
+        st.kernel.take(vid, x0, asg.profile.packed(N_PROFILE_SEG), st.t, s_proj, lat0, st.paths[rec.movement],
+                       rec.acc)
+
+    # ------------------------------------------------------------ behind a human driver
+    def blocked_ahead(self, vid: str) -> bool:
+        """Whether a vehicle whose crossing is not reserved yet, a human driver or a controlled
+        vehicle queued behind one, is ahead of ``vid`` on its entry lane, by where SUMO has them
+        now (on a corridor the vehicles on a lane come from several roads upstream, so the order
+        of departure is not the lane's order)."""
+        st = self.st
+        q = st.life.waiting_at_line(st.records[vid].lane)
+        if not q or (len(q) == 1 and vid in q):
+            return False
+        here = st.cg_on_path(vid) if vid in st.snap.row else None
+        if here is None:
+            return True  # (not on its path's lanes yet: everyone on the lane is ahead of it)
+        for u in q:
+            if u != vid and u in st.snap.row:
+                s = st.cg_on_path(u)
+                if s is not None and s > here:
+                    return True
+        return False
+
+    def wait_at_stop_line(self, vid: str, colour: str) -> None:
+        """A controlled vehicle that is not scheduled yet and must not cross unplanned: SUMO drives
+        it on to a stop short of the merging zone; until its crossing is scheduled or reserved it
+        waits at its lane's stop line (the vehicles behind it wait for it, :meth:`hindered`)."""
+        st = self.st
+        rec = st.records[vid]
+        rec.hindered = True
+        st.sumo.stop_at(vid, *st.stop_line[rec.movement, "automated"])
+        st.sumo.colour(vid, colour)
+        st.life.wait_at_line(vid, rec.lane)
+
+    def hindered(self, vid: str) -> bool:
+        """Whether a controlled vehicle in the control zone must wait for a human driver instead of
+        being scheduled now. When it is first found with an unreserved vehicle ahead on its lane
+        (:meth:`blocked_ahead`), SUMO is told to stop it at the stop line, and the vehicles behind
+        it wait for it too. Once nothing unreserved is ahead: moving, it is scheduled as any other
+        (:meth:`admit` cancels the stop; when no merge time fits it drives on to the stop line);
+        standing at the stop line, its start from rest is reserved (:meth:`reserve_from_rest`,
+        ``starting``)."""
+        rec = self.st.records[vid]
+        if self.st.life.state(vid) is State.STARTING:
+            return True
+        if not rec.hindered:
+            if not self.blocked_ahead(vid):
+                return False
+            self.wait_at_stop_line(vid, "pending")
+            return True
+        if self.blocked_ahead(vid):
+            return True
+        if self.st.standing_at_stop(vid):
+            self.reserve_from_rest(vid)
+            return True
+        return False
+
+    def reserve_from_rest(self, vid: str) -> None:
+        """Reserve the start of a controlled vehicle standing at the stop line: from rest at the
+        planning's ``u_max_mps2`` up to its crossing speed (:func:`~nrtraffic.planning.profiles.
+        from_rest`, the plan the kernel will track), its occupancy of each conflict area bounded
+        with ``FROM_REST_SLACK_S`` each side."""
+        st = self.st
+        rec = st.records[vid]
+        mv = st.paths[rec.movement]
+        a, v_c = st.sc.planning.u_max_mps2, min(mv.v_limit, st.sc.planning.v_max_mps)
+        humans.reserve(st, vid, CrossingBounds(a, a, v_c, v_c, FROM_REST_SLACK_S))
+        rec.profile_kind = "from_rest"
+        st.life.move(vid, State.STARTING)
+        st.sumo.colour(vid, "held")
+
+    def start(self) -> None:
+        """Controlled vehicles whose reserved start from rest has come: the kernel takes them over."""
+        st = self.st
+        for vid in st.life.members(State.STARTING):
+            rec = st.records[vid]
+            if st.t < rec.t_release - 1e-9:
+                continue
+            got = self.request(vid)
+            if got is None:  # no longer seen on its path (not expected)
+                st.life.move(vid, State.LOST)
+                continue
+            req = got[0]
+            mv = st.paths[rec.movement]
+            prof = from_rest(st.t, req.D, st.sc.planning.u_max_mps2, min(mv.v_limit, st.sc.planning.v_max_mps))
+            st.sumo.resume(vid)
+            self.admit(got, Assignment(vid, rec.lane, st.t, prof.t_m, prof, rec.predecessor, rec.relation,
+                                       rec.binding, rec.movement))
