@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit
 
 from nrtraffic import scenario
-from nrtraffic.control.nr_flow import EULER, PREDICTORS, RK4, new_workspace, nr_update, predictor_steps
+from nrtraffic.control.nr_flow import EULER, RK4, new_workspace, nr_update, predictor_steps
 from nrtraffic.geometry import LanePath
 from nrtraffic.vehicle.bicycle import euler_step
 from nrtraffic.vehicle.params import preset
@@ -77,54 +77,41 @@ def bench_kernels(horizon=0.2) -> dict:
 
 def bench_batch(n_vehicles: int, horizon=0.2, n_sub=20, barriers: bool = True, predictor: str = "rk4",
                 dt_pred: float = JUNCTION_RK4_STEP_S) -> float:
-    """Wall time [us] of the batched kernel per vehicle per plant step, best of 5 (synthetic straight road,
-    vehicles 20 m apart at 13.4 m/s, each following the one ahead: both barriers evaluated every
-    plant step; no predictor model error, as in the junction scenarios)."""
-    from nrtraffic.control import batch as kb
-    from nrtraffic.geometry import segment_frames
+    """Wall time [us] of the batched kernel per vehicle per plant step, best of 5: cross4's vehicle
+    and controller (with this horizon, predictor and barriers) on a synthetic straight road,
+    vehicles 20 m apart at 13.4 m/s, each following the one ahead (both barriers evaluated every
+    plant step), through the library's :class:`~nrtraffic.control.kernel.Kernel`."""
+    from nrtraffic.control.batch import NO_LEADER, new_acc
+    from nrtraffic.control.kernel import Kernel
+    from nrtraffic.control.table import N_PROFILE_SEG
+    from nrtraffic.junction import Movement
 
-    P = preset("paper")
-    p = pp = P.as_array()
+    flag = "true" if barriers else "false"
+    sc = scenario.load(ROOT / "sumo_scenarios" / "cross4" / "scenario.toml", [
+        f"controller.horizon_s={horizon}", f'controller.predictor="{predictor}"', f"controller.predictor_step_s={dt_pred}",
+        f"sumo.step_length_s={n_sub * 0.005}", f"barriers.longitudinal={flag}", f"barriers.lateral={flag}"])
+    kern = Kernel(sc, sc.vehicle.params(), seed=1)
     path = LanePath.from_points([(0.0, 0.0), (5000.0, 0.0)])
+    road = Movement("road", "road", "through", ("road",), path, ["road_0"], {"road_0": (0.0, 1.0)}, 0.0, 4900.0,
+                    4990.0)
+    kern.pack_paths({"road": road})
+    prof = np.zeros((N_PROFILE_SEG, 5))
+    prof[:, 0] = np.arange(N_PROFILE_SEG) * 1e9
+    prof[:, 2] = 13.4  # constant speed
     N = n_vehicles
-    X = np.zeros((N, 6))
-    X[:, 0] = np.arange(N) * 20.0
-    X[:, 2] = 13.4
-    U = np.zeros((N, 2))
-    prof = np.zeros((N, 5, 5))
-    prof[:, :, 0] = np.arange(5) * 1e9
-    prof[:, :, 2] = 13.4
-    s_enter = X[:, 0].copy()
-    cfg = np.zeros(kb.N_CFG)
-    cfg[[kb.CFG_H, kb.CFG_HORIZON, kb.CFG_DT_PRED, kb.CFG_ALPHA, kb.CFG_DAMPING, kb.CFG_STEADY_AFTER,
-         kb.CFG_PREDICTOR]] = (0.005, horizon, dt_pred, 100.0, 1e-6, 3.0, PREDICTORS[predictor])
-    cfg[[kb.CFG_CBF_LONG, kb.CFG_CBF_LAT, kb.CFG_D0, kb.CFG_A_BAR, kb.CFG_LONG_GAIN, kb.CFG_Y_MAX, kb.CFG_K_LAT,
-         kb.CFG_GAMMA, kb.CFG_BISECT_TOL, kb.CFG_ANTI_WINDUP, kb.CFG_ROOT_C]] = (
-        float(barriers), float(barriers), 6.8, 3.0, 1.0, 0.5, 0.25, 15.0, 1e-6, 1.0, 0.1)
-    lead_idx = np.arange(1, N + 1, dtype=np.int64)
-    lead_idx[-1] = kb.NO_LEADER
-    acc = kb.new_acc(N)
-    out = np.zeros((N, kb.N_OUT))
-    out[:, kb.OUT_S] = s_enter
-    pid = np.zeros(N, dtype=np.int64)
-    off = np.array([0, len(path.s)], dtype=np.int64)
-    frames = segment_frames(path.xy, path.s)
-    hint = np.searchsorted(path.s, s_enter).astype(np.int64) - 1
-    hint[hint < 0] = 0
-    lo, hi = np.array([-6.0, -0.78]), np.array([3.0, 0.78])
-
-    def step(t):
-        kb.advance(X, U, t, n_sub, cfg, p, pp, lo, hi, prof, np.zeros(N), s_enter, pid, off, path.xy, path.s, frames,
-                   hint, lead_idx, np.zeros((N, 6)), acc, out, np.zeros((N, n_sub, 0)), np.zeros((N, 2)),
-                   X.copy())
-
-    step(0.0)
+    for i in range(N):
+        kern.take(f"v{i}", np.array([20.0 * i, 0.0, 13.4, 0.0, 0.0, 0.0]), prof, 0.0, 20.0 * i, 0.0, road,
+                  new_acc(1)[0])
+    kern.table.lead_idx[:] = np.arange(1, N + 1)
+    kern.table.lead_idx[-1] = NO_LEADER
+    dt = sc.sumo.step_length_s
+    kern.advance(0.0, dt)
     n_steps = 20
     best = np.inf
     for rep in range(5):  # best of 5: the machines are shared
         t0 = time.perf_counter()
         for k in range(n_steps):
-            step(0.1 * (rep * n_steps + k + 1))
+            kern.advance(dt * (rep * n_steps + k + 1), dt)
         best = min(best, time.perf_counter() - t0)
     return best / (n_steps * n_sub * N) * 1e6
 
@@ -133,7 +120,7 @@ def bench_run(scenario_path: Path, duration_s: float | None = None, overrides: t
     """A co-simulation run, then SUMO alone on the same demand (the run's own route file and
     network, every vehicle driven by SUMO, same steps), back to back in this process. Returns wall
     times, real-time factors, their ratio and the run's wall-time breakdown."""
-    from nrtraffic.sumo.adapter import SumoSession
+    from nrtraffic.sumo.adapter import drive_alone
     from runners.single import run_scenario
 
     sc = scenario.load(scenario_path, list(overrides))
@@ -142,12 +129,8 @@ def bench_run(scenario_path: Path, duration_s: float | None = None, overrides: t
         res = run_scenario(sc, out, duration_s=duration_s)
         s = res.summary
         co_wall, sim = s["wall_time_s"], s["sim_time_s"]
-        t0 = time.perf_counter()
-        with SumoSession(sc.network_path, out / "sumo" / "routes.rou.xml", sc.sumo.step_length_s, sc.general.seed,
-                         sc.sumo.lateral_resolution_m) as sumo:
-            while sumo.time < sim - 1e-9:
-                sumo.step()
-        sumo_wall = time.perf_counter() - t0
+        sumo_wall = drive_alone(sc.network_path, out / "sumo" / "routes.rou.xml", sc.sumo.step_length_s,
+                                sc.general.seed, sim, sc.sumo.lateral_resolution_m)
     return {"scenario": sc.general.name, "overrides": " ".join(overrides), "sim_time_s": sim, "cosim_wall_s": co_wall,
             "sumo_wall_s": sumo_wall, "cosim_rtf": sim / co_wall, "sumo_rtf": sim / sumo_wall,
             "slowdown": co_wall / sumo_wall, "breakdown": s.get("wall_time_breakdown_s", {}),
