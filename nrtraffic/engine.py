@@ -265,14 +265,15 @@ class Engine:
         for vid in sumo.departed():
             adm.depart(vid, dt)
         st.snap = sumo.snapshot()
-        measure.track_sumo_driven(st, dt, adm.next_leg)
-        humans.step(st)
+        driven = measure.track_sumo_driven(st, dt, adm.next_leg)
+        if adm.human_ids:
+            humans.step(st)
         lap("sumo_io")
         # 2. each junction decides
         adm.step(dt)
         lap("admission")
         # 3. measure
-        measure.leaders(st)
+        measure.leaders(st, driven)
         lap("leaders")
         measure.collisions_geometric(st, self.collisions_geometric, self.collision_log)
         lap("collision_check")
@@ -291,7 +292,8 @@ class Engine:
         lap("kernel")
         # 5. write to SUMO
         self._push_and_release()
-        self._script(st.t + dt)
+        if adm.listed:
+            self._script(st.t + dt)
         lap("sumo_io")
         # 6. step SUMO
         sumo.step()

@@ -180,7 +180,12 @@ class Lifecycle:
 
     def _set(self, vid: str, state: State, place: int) -> None:
         self._state[vid] = state
-        self._members[state][vid] = place
+        d = self._members[state]
+        if d and place < next(reversed(d.values())):  # (a kept place: the state's queue stays in order)
+            d[vid] = place
+            self._members[state] = dict(sorted(d.items(), key=lambda kv: kv[1]))
+        else:
+            d[vid] = place
         if state is not S.GONE and vid in self.records:
             self.records[vid].status = LABEL.get(state, state.value)
 
@@ -190,12 +195,16 @@ class Lifecycle:
     def members(self, *states: State, junction: str | None = None) -> list[str]:
         """The vehicles in any of ``states`` (at ``junction``, if given), in the order they entered
         their queue."""
-        if len(states) == 1:
-            d = self._members[states[0]]
-            out = sorted(d, key=d.__getitem__)
+        m = self._members
+        if len(states) == 1:  # each state's queue is kept in order of places
+            out = list(m[states[0]])
         else:
-            places = {v: p for s in states for v, p in self._members[s].items()}
-            out = sorted(places, key=places.__getitem__)
+            queues = [m[s] for s in states if m[s]]
+            if len(queues) <= 1:
+                out = list(queues[0]) if queues else []
+            else:
+                places = {v: p for d in queues for v, p in d.items()}
+                out = sorted(places, key=places.__getitem__)
         if junction is not None:
             out = [v for v in out if self._junction[v] == junction]
         return out

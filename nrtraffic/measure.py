@@ -18,19 +18,24 @@ from nrtraffic.vehicle.fuel import fuel_rate
 LEADER_LOOKAHEAD_M = 200.0  # how far along its path a vehicle looks for its leader [m]
 
 
-def track_sumo_driven(st, dt: float, next_leg) -> None:
+def track_sumo_driven(st, dt: float, next_leg) -> list[str]:
     """Zone crossings and figures of SUMO-driven vehicles (baselines, human drivers, scripted
     leaders), from their lane positions, speeds and accelerations each step; a vehicle that left
     the network is ``gone``. ``next_leg(vid)``: the hand-over to the next junction of its trip,
-    called when it leaves a merging zone."""
+    called when it leaves a merging zone. Returns the SUMO-driven vehicles still in the network."""
     tab = st.snap
     cg = st.params.cg_to_front
-    for vid in st.life.members(*SUMO_DRIVEN):
+    driven = st.life.members(*SUMO_DRIVEN)
+    if not driven:
+        return driven
+    live = []
+    for vid in driven:
         rec = st.records[vid]
         k = tab.row.get(vid)
         if k is None:
             st.life.move(vid, State.GONE)
             continue
+        live.append(vid)
         mv = st.paths[rec.movement]
         lane, pos = tab.lane[k], float(tab.lane_pos[k])
         if lane not in mv.lane_offset:
@@ -57,21 +62,21 @@ def track_sumo_driven(st, dt: float, next_leg) -> None:
             acc[kb.ACC_MAX_ABS_A] = max(acc[kb.ACC_MAX_ABS_A], abs(a))
             acc[kb.ACC_STEPS] += 1
         rec.s_last = s_new
+    return live
 
 
-def leaders(st) -> None:
+def leaders(st, driven: list[str]) -> None:
     """For each controlled vehicle, the nearest vehicle ahead on the lanes of its own path
     (controlled or SUMO-driven, of any movement: the same lane before a diverge, the same
     outgoing lane after a merge; :func:`nrtraffic.control.leaders.find_leaders`): its batch
     index or its state, and the bumper gap [m] to it, all at time ``t``; the same search gives the
-    gaps of SUMO-driven vehicles in a control zone, for the figures. Vehicles on other lanes
+    gaps of SUMO-driven vehicles (``driven``) in a control zone, for the figures. Vehicles on other lanes
     (crossing movements) are kept apart by the coordinator, not by the barrier. Sets each
     controlled vehicle's row in SUMO's table (``rows``, -1 where SUMO no longer lists it)."""
     tab, kern = st.snap, st.kernel
     lane_id = np.array([kern.lane_index.get(ln, -1) for ln in tab.lane], dtype=np.int64)
     p = st.params
-    vids = [v for v in st.life.members(*SUMO_DRIVEN)
-            if not math.isnan(st.records[v].t_enter) and math.isnan(st.records[v].t_exit)]
+    vids = [v for v in driven if not math.isnan(st.records[v].t_enter) and math.isnan(st.records[v].t_exit)]
     if vids:
         rows = np.array([tab.row.get(v, -1) for v in vids], dtype=np.int64)
         pid = np.array([kern.path_index[st.records[v].movement] for v in vids], dtype=np.int64)

@@ -36,10 +36,7 @@ class RunState:
     def __post_init__(self):
         if self.life is None:
             self.life = Lifecycle(self.records)
-
-    @property
-    def junctions(self) -> dict[str, Junction]:
-        return self.layout.junctions
+        self.junctions: dict[str, Junction] = self.layout.junctions
 
     def cg_on_path(self, vid: str) -> float | None:
         """Where a SUMO-driven vehicle's centre of gravity is on its movement's path now [m] (None

@@ -130,7 +130,7 @@ class Admission:
                 continue
             if ((rec.hindered or self.blocked_ahead(vid)) and self.request(vid, entry_only=True)
                     and self.hindered(vid)):  # waits for a human ahead, or starts from the stop line
-                if life.state(vid) is not State.STARTING:
+                if rec.status != "starting":
                     blocked.add(rec.lane)
                 continue
             state = self.try_admit(vid)
@@ -153,14 +153,14 @@ class Admission:
         lane, pos = tab.lane[k], float(tab.lane_pos[k])
         if lane not in mv.lane_offset:
             return None
-        cg = st.params.cg_to_front
-        s_cg = mv.s_of(lane, pos) - cg
+        s_cg = mv.s_of(lane, pos) - st.params.cg_to_front
         if s_cg < mv.s_control - 1e-6:
             return None
         if math.isnan(rec.t_arrive):
             rec.t_arrive, rec.s_arrive = st.t, s_cg
         if entry_only:
             return True
+        cg = st.params.cg_to_front
         xf, yf, psi = float(tab.x[k]), float(tab.y[k]), float(tab.psi[k])
         v = float(tab.speed[k])
         x0 = np.array([xf - cg * math.cos(psi), yf - cg * math.sin(psi), v, 0.0, psi + rec.heading_offset, 0.0])
@@ -207,22 +207,28 @@ class Admission:
                 st.sumo.colour(vid, "pending")
         for j in st.junctions.values():
             self.close_batch(j, dt)
-        self.account_waiting(st.life.members(State.STARTING), dt)
+        if st.life.count(State.STARTING):
+            self.account_waiting(st.life.members(State.STARTING), dt)
 
     def pending(self, j) -> list[str]:
         """Junction ``j``'s batch: its vehicles waiting for it to close (held ones too)."""
-        return self.st.life.members(State.BATCHED, State.HELD, junction=j.id)
+        return self.st.life.members(State.BATCHED, State.HELD, junction=j.id if len(self.st.junctions) > 1 else None)
 
     def close_batch(self, j, dt: float) -> None:
         """Junction ``j``'s batch: its waiting vehicles accounted for, and all scheduled together
         when the batch closes (:meth:`admit_batch`)."""
         st = self.st
-        # behind a human: checked each step, until its start is reserved (then it leaves the batch)
-        waiting = {vid for vid in self.pending(j) if self.hindered(vid)}
         pending = self.pending(j)
+        if not pending:
+            return
+        # behind a human: checked each step, until its start is reserved (then it leaves the batch)
+        waiting = {vid for vid in pending if self.hindered(vid)}
+        if waiting:
+            pending = [v for v in pending if st.records[v].status != "starting"]
         for vid in pending:
-            if st.life.state(vid) is State.HELD:
-                st.records[vid].t_held += dt
+            rec = st.records[vid]
+            if rec.status == "held":
+                rec.t_held += dt
         self.account_waiting(pending, dt)
         if not pending or st.t < j.batch_closes - 1e-9:
             return
@@ -366,6 +372,8 @@ class Admission:
     def start(self) -> None:
         """Controlled vehicles whose reserved start from rest has come: the kernel takes them over."""
         st = self.st
+        if not st.life.count(State.STARTING):
+            return
         for vid in st.life.members(State.STARTING):
             rec = st.records[vid]
             if st.t < rec.t_release - 1e-9:
