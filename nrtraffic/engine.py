@@ -54,6 +54,11 @@ CHECKPOINT_WALL_S = 10.0  # wall time between checkpoints of the figures (``chec
 WALL_PHASES = ("kernel", "sumo_step", "sumo_io", "admission", "qp", "leaders", "collision_check", "logging")
 
 
+class Gridlock(RuntimeError):
+    """A junction made no progress: no vehicle left its merging zone for ``outputs.stall_s`` while
+    vehicles waited there."""
+
+
 class RunFailed(RuntimeError):
     """A run stopped early; ``result`` holds what was finished."""
 
@@ -204,9 +209,9 @@ class Engine:
                 self.layout.junctions, st.paths, self.params, self.sc.junction.lateral_clearance_m,
                 lambda m, s: self.kernel.crossing_headings(m, min(m.v_limit, v_max), s),
                 bool(self.admission.human_ids) and self.control)
-            # where vehicles stop before they cross: human drivers, cars queued behind them, and on a
-            # corridor cars with no merge time yet (Admission.hold)
-            if self.control and (self.admission.human_ids or self.layout.upstream_junction):
+            # where vehicles stop before they cross: human drivers, cars queued behind them, and cars
+            # with no merge time yet (Admission.hold)
+            if self.control:
                 st.stop_line = build.stop_lines(st.paths, st.conflict_areas, self.layout.junctions, self.params)
         except ValueError as exc:  # the junction or its zones do not suit: nothing was run
             raise NetworkError(f"{self.sc.general.name}: {exc}") from None
@@ -240,6 +245,8 @@ class Engine:
                 if st.t > 0 and st.sumo.pending() == 0 and not self.kernel.table.ids:
                     break
                 now = self._tick(dt, step % log_every == 0, step % 10 == 0)
+                if step % 10 == 0:
+                    self._watch()
                 step += 1
                 bar.update(dt)
                 if plain_progress and st.t + dt >= next_report:  # not a terminal: a line every 10 %
@@ -289,6 +296,7 @@ class Engine:
                 rec.t_merge_actual = t_cross
             elif k == 1 and math.isnan(rec.t_exit):
                 rec.t_exit = t_cross
+                st.junctions[rec.junction].exits += 1
         lap("kernel")
         # 5. write to SUMO
         self._push_and_release()
@@ -303,6 +311,27 @@ class Engine:
                 self.collisions_sumo.add(pair)
                 self.collision_log.append({"t": sumo.time, "pair": list(pair), "source": f"sumo:{kind}"})
         return lap("sumo_step")
+
+    def _watch(self) -> None:
+        """The watchdog: raise :class:`Gridlock` when a junction has had vehicles waiting and none
+        leaving its merging zone for ``outputs.stall_s``, naming the junction, the waiting vehicles
+        and their movements."""
+        stall, st = self.sc.outputs.stall_s, self.st
+        if stall <= 0:
+            return
+        for j in st.junctions.values():
+            if j.exits != j.exits_seen or st.t - j.idle_since < stall:
+                if j.exits != j.exits_seen or not self.admission.waiting(j):
+                    j.idle_since, j.exits_seen = st.t, j.exits
+                continue
+            waiting = self.admission.waiting(j)
+            if not waiting:
+                j.idle_since = st.t
+                continue
+            names = ", ".join(f"{v} ({st.records[v].movement}, {st.records[v].status})" for v in waiting[:12])
+            more = f" and {len(waiting) - 12} more" if len(waiting) > 12 else ""
+            raise Gridlock(f"junction {j.id or '(road)'}: no vehicle crossed for {st.t - j.idle_since:.0f} s "
+                           f"(outputs.stall_s = {stall:g}) while {len(waiting)} waited: {names}{more}")
 
     # ------------------------------------------------------------------ what the tick composes
     def _push_and_release(self) -> None:
@@ -390,7 +419,8 @@ class Engine:
             vehicles_spawned=sum(r.status != "waiting" for r in records.values()),
             drivers={r.vehicle_id: r.driver for r in records.values()},
             wall_breakdown=self.wall_breakdown, versions=(__version__, sumo_version()))
-        status = ("ok" if error is None else "failed") if final else "running"
+        status = ("ok" if error is None else "gridlock" if isinstance(error, Gridlock) else "failed") \
+            if final else "running"
         demand = self.demand.demand_veh_h if self.layout is not None else None
         summary = run_summary(facts, veh, trips, demand, status, error)
         extra = {}

@@ -498,12 +498,25 @@ def run_summary(f: RunFacts, veh: pd.DataFrame, trips: dict, demand_veh_h, statu
     due = [t for t in f.waiting_to_enter if t <= sim_t]  # due to depart, but SUMO could not insert it
     mean_delay = metrics.mean_or_none(done["delay_s"])
     controlled = f.control
+    served = throughput / demand if demand and throughput is not None else None
+    warnings = []
+    if f.collisions_sumo or f.collisions_geometric:
+        warnings.append(f"collisions: {len(f.collisions_sumo)} in SUMO's check, {len(f.collisions_geometric)} in the "
+                        f"own check (collision_events)")
+    if window > 0 and not exits:
+        warnings.append("no vehicle left a merging zone in the measurement window")
+    if served is not None and served < 0.9:
+        warnings.append(f"served {100 * served:.0f} % of the demand in the window (below 90 %)")
+    if due:
+        warnings.append(f"{len(due)} vehicles due to depart could not enter the network yet (mean wait "
+                        f"{np.mean([sim_t - t for t in due]):.0f} s, not in the delay)")
     return {
         "scenario": f.scenario,
         "control": f.label,
         "seed": f.seed,
         "status": status,
         "error": None if error is None else f"{type(error).__name__}: {error}",
+        "warnings": warnings,
         "sim_time_s": sim_t,
         "wall_time_s": wall,
         "real_time_factor": sim_t / wall if wall > 0 else None,
@@ -514,7 +527,7 @@ def run_summary(f: RunFacts, veh: pd.DataFrame, trips: dict, demand_veh_h, statu
         "vehicles_completed": int(len(done)),
         "throughput_veh_h": throughput,
         "demand_veh_h": demand or None,
-        "served_share": throughput / demand if demand and throughput is not None else None,
+        "served_share": served,
         "control_zones_cut_m": {k: round(v, 3) for k, v in f.zone_cuts.items()},
         "junctions": junction_table(veh, f.junctions, f.label, w0, w1),
         "corridor": corridor_table(veh, trips, len(f.junctions), w0, w1),

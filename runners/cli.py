@@ -344,6 +344,8 @@ def _print_summary(s: dict, out: Path) -> None:
                                                           "stops_per_vehicle": 2, "fuel_ml_per_vehicle": 1})
             print(f"\nper movement (movements.csv; LOS by the {thresholds} HCM thresholds):")
             print(m.to_string(index=False, na_rep="-"))
+    for w in s.get("warnings") or ():
+        print(f"warning: {w}")
     print(f"run directory: {out}")
 
 

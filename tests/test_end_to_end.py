@@ -112,7 +112,11 @@ def test_an_unmeetable_schedule_holds_the_vehicle_instead_of_failing(tmp_path, p
     res = run_scenario(sc, tmp_path / "held")
     veh = res.vehicles.set_index("vehicle_id")
     assert veh.loc["main.0", "status"] == "released"
-    # held at the zone entry until a merge time within the bounds exists, then admitted
+    # no plan within the bounds waits 400 s: held, it drives on to its stop line, and standing there
+    # its start from rest is reserved, 400 s after the car ahead entered the merging zone
     assert veh.loc["main.1", "t_held_s"] > 10.0
-    assert veh.loc["main.1", "v_enter_mps"] < 13.4
+    assert veh.loc["main.1", "status"] == "starting" and veh.loc["main.1", "profile"] == "from_rest"
+    assert veh.loc["main.1", "t_merge_planned_s"] >= veh.loc["main.0", "t_merge_planned_s"] + 400.0
+    assert veh.loc["main.1", "t_release_s"] > veh.loc["main.0", "t_merge_planned_s"] + 398.0
     assert res.summary["vehicles_held"] >= 1 and res.summary["collisions"] == 0
+    assert res.summary["status"] == "ok"  # (the watchdog's 120 s have not passed)

@@ -241,3 +241,47 @@ def test_rear_end_qp_reports_an_impossible_gap(solver):
     stop = lambda t: np.full_like(np.asarray(t, float), 5.0)  # noqa: E731
     with pytest.raises(InfeasibleProfile):
         rear_end_constrained(0.0, 13.89, 400.0, 30.0, B_JUNCTION, stop, 30.0, 12.0, vm=13.89, solver=solver)
+
+
+@pytest.mark.parametrize("v0, vm, T", [(13.89, 13.89, 100.0), (13.89, 13.89, 250.0), (13.89, 8.0, 150.0),
+                                       (6.0, 13.89, 200.0)])
+def test_fixed_terminal_with_a_long_wait_cruises_at_v_min_and_matches_discretised_qp(v0, vm, T):
+    """A merge time much later than cruising gives (the junction is saturated): the cubic would fall
+    below v_min, and the bounded optimum brakes to v_min, cruises there, and speeds up to vm."""
+    b = B_JUNCTION
+    prof = fixed_terminal(0.0, v0, vm, 400.0, T, b)
+    assert prof.kind == "fixed_speed_slow"
+    t = np.linspace(0.0, T, 8001)
+    p, v, u = prof.evaluate(t)
+    assert p[-1] == pytest.approx(400.0, abs=1e-6) and v[-1] == pytest.approx(vm, abs=1e-9)
+    assert v.min() >= b.v_min_mps - 1e-9 and v.min() == pytest.approx(b.v_min_mps, abs=1e-6)
+    assert u.min() >= b.u_min_mps2 - 1e-9 and u.max() <= b.u_max_mps2 + 1e-9
+    assert np.all(np.diff(p) >= 0.0)
+    assert prof.energy() == pytest.approx(_qp_energy(v0, 400.0, T, b, vm=vm, n=800), rel=0.01)
+
+
+def test_a_wait_longer_than_v_min_allows_is_refused():
+    b = B_JUNCTION
+    with pytest.raises(InfeasibleProfile):
+        fixed_terminal(0.0, 13.89, 13.89, 400.0, 500.0, b)  # 400 m at >= 1 m/s take at most ~390 s
+
+
+@pytest.mark.parametrize("T", [30.0, 45.0])
+def test_a_standing_car_gets_the_energy_optimal_start_and_never_reverses(T):
+    """From rest (below v_min) the plan starts from rest and never drops below the speed it has:
+    the discretised QP with v >= 0 is the reference."""
+    b = B_JUNCTION
+    prof = fixed_terminal(0.0, 0.0, 13.89, 300.0, T, b)
+    t = np.linspace(0.0, T, 4001)
+    p, v, u = prof.evaluate(t)
+    assert p[-1] == pytest.approx(300.0, abs=1e-6) and v[-1] == pytest.approx(13.89, abs=1e-9)
+    assert v.min() >= -1e-9 and v.max() <= b.v_max_mps + 1e-9
+    from_rest = PlanBounds(v_min_mps=1e-9, v_max_mps=b.v_max_mps, u_min_mps2=b.u_min_mps2, u_max_mps2=b.u_max_mps2)
+    assert prof.energy() == pytest.approx(_qp_energy(0.0, 300.0, T, from_rest, vm=13.89), rel=0.01)
+
+
+def test_a_standing_car_with_too_long_a_wait_is_refused():
+    """It would have to drive backwards (or stop, which is no energy-optimal arc): refused, so that
+    it is held and starts from rest at its stop line."""
+    with pytest.raises(InfeasibleProfile):
+        fixed_terminal(0.0, 0.0, 13.89, 300.0, 200.0, B_JUNCTION)

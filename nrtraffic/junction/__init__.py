@@ -65,8 +65,8 @@ class Junction:
     zone on a plain road) and ``control_zone_m`` the length of its control zone before it [m].
     ``movements`` are the names of its movements (keys of the engine's paths); ``relations`` and
     ``conflict_areas`` relate them to each other only; ``coord`` schedules the vehicles entering its
-    control zone. With ``policy = "batch"``, ``pending`` are the vehicles in its control zone
-    waiting for the batch that closes at ``batch_closes`` [s].
+    control zone. With ``policy = "batch"``, its batch closes at ``batch_closes`` [s]. ``exits`` and
+    ``idle_since`` are the watchdog's (:meth:`nrtraffic.engine.Engine._watch`).
     """
 
     id: str
@@ -77,8 +77,10 @@ class Junction:
     relations: dict = field(default_factory=dict)
     conflict_areas: dict = field(default_factory=dict)
     coord: Coordinator | None = None
-    pending: list[str] = field(default_factory=list)
     batch_closes: float = math.inf
+    exits: int = 0  # vehicles that left its merging zone so far
+    exits_seen: int = 0  # ... when the watchdog last looked
+    idle_since: float = 0.0  # since when no vehicle left its merging zone while vehicles waited [s]
 
     def in_merging_zone(self, xy: np.ndarray) -> np.ndarray:
         """Whether points ``xy`` (n x 2) [m] lie inside the merging zone's disc."""

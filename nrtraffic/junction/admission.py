@@ -4,8 +4,10 @@ scheduled, batched, held or started from rest, and the hand-over from one juncti
 A vehicle SUMO inserts (``waiting``) is ``approaching``; once its centre of gravity crosses the
 control-zone entry the coordinator of its junction is asked for a merge time, one vehicle at a time
 (``policy = "fifo"``) or a batch of them (``"batch"``: ``batched`` until the batch closes). With a
-merge time it is ``controlled``: the kernel drives it on its energy-optimal profile. Without one it
-is ``held``: SUMO stops it at the entry and it is asked for again. A vehicle behind a human driver
+merge time it is ``controlled``: the kernel drives it on its energy-optimal profile (or, for a long
+wait, a stop before the zone and a start from rest). Without one it is ``held``: SUMO drives it on
+to its stop line, asking again on the way; standing there its start from rest is reserved, which
+always finds a slot, so every vehicle that arrives is served. A vehicle behind a human driver
 on its lane, whose crossing is not reserved yet, waits for it: SUMO stops it at the stop line, and
 standing there its start from rest is reserved (``starting``). Released past the merging zone, a
 vehicle whose trip goes on to another controlled junction starts a new record there.
@@ -264,22 +266,44 @@ class Admission:
             acc[kb.ACC_FUEL] += fuel_rate(v, a) * dt
 
     def hold(self, vid: str) -> None:
-        """No merge time for a vehicle in the control zone now: SUMO stops it at the control-zone
-        entry and admission is tried again. Where that entry is the hand-over from a junction
-        upstream (a corridor), stopping there would block that junction's exit: SUMO drives it on
-        instead, to a stop short of the merging zone, and it is scheduled on the way or started
-        from that stop, as a car queued behind a human driver is (:meth:`hindered`)."""
+        """No merge time for a vehicle in the control zone now (``held``): SUMO drives it on to a
+        stop short of the merging zone, at its stop line; on the way it is asked for again, and
+        standing there its start from rest is reserved, which always finds a slot
+        (:meth:`hindered`, :meth:`reserve_from_rest`). The vehicles behind it on its lane queue
+        behind it, in their order. (Stopping it where it is instead would leave it standing in the
+        control zone with no plan that starts from rest: the junction could lock up.)"""
         st = self.st
         rec = st.records[vid]
-        if rec.hindered:  # it drives on to its stop at the stop line (hindered)
-            return
-        if rec.approach in st.layout.upstream_junction:
-            self.wait_at_stop_line(vid, "held")
-            return
-        if st.life.state(vid) is not State.HELD:
+        if st.life.state(vid) in (State.APPROACHING, State.BATCHED):
             st.life.move(vid, State.HELD)
-            st.sumo.hold_speed(vid, 0.0)
-            st.sumo.colour(vid, "held")
+        if not rec.hindered:
+            self.wait_at_stop_line(vid, "held")
+
+    def live(self, j) -> bool:
+        """The junction's liveness invariant: while vehicles wait at junction ``j``, some conflict
+        area is in use or reserved ahead (a vehicle under control or crossing, a reservation that
+        ends after now), or a waiting vehicle is still on its way to its stop line, where its start
+        from rest will be reserved. Held vehicles are never left standing without one of these."""
+        st = self.st
+        waiting = self.waiting(j)
+        if not waiting:
+            return True
+        jid = j.id if len(st.junctions) > 1 else None
+        if st.life.members(State.CONTROLLED, State.CROSSING, junction=jid):
+            return True
+        if j.coord.reserved_after(st.t):
+            return True
+        tab = st.snap
+        return any(tab.row.get(v) is not None and tab.speed[tab.row[v]] >= 0.1 for v in waiting)
+
+    def waiting(self, j) -> list[str]:
+        """The vehicles waiting at junction ``j``: in its control zone, neither under control nor
+        crossing (scheduled nowhere yet, or standing for a reserved start)."""
+        life, recs = self.st.life, self.st.records
+        jid = j.id if len(self.st.junctions) > 1 else None
+        out = [v for v in life.members(State.APPROACHING, State.HUMAN, junction=jid)
+               if not (math.isnan(recs[v].t_arrive) and math.isnan(recs[v].t_enter))]
+        return out + life.members(State.BATCHED, State.HELD, State.STARTING, State.RESERVED, junction=jid)
 
     def admit(self, got, asg) -> None:
         """Take a scheduled vehicle over: from now on the kernel drives it."""
@@ -350,10 +374,21 @@ class Admission:
             return True
         if self.blocked_ahead(vid):
             return True
-        if self.st.standing_at_stop(vid):
+        if self.standing(vid):
             self.reserve_from_rest(vid)
             return True
         return False
+
+    def standing(self, vid: str) -> bool:
+        """Whether a controlled vehicle waiting at its lane's stop line stands: at the stop line, or
+        anywhere on its path in a standing queue (its start from rest is then reserved from there:
+        the queue sets off as a platoon, not one car at a time from the line)."""
+        st = self.st
+        k = st.snap.row.get(vid)
+        if k is None or st.snap.speed[k] >= 0.1:
+            return False
+        s = st.cg_on_path(vid)
+        return s is not None and st.paths[st.records[vid].movement].s_merge - s > 0.0
 
     def reserve_from_rest(self, vid: str) -> None:
         """Reserve the start of a controlled vehicle standing at the stop line: from rest at the
@@ -367,6 +402,7 @@ class Admission:
         humans.reserve(st, vid, CrossingBounds(a, a, v_c, v_c, FROM_REST_SLACK_S))
         rec.profile_kind = "from_rest"
         st.life.move(vid, State.STARTING)
+        st.sumo.hold_speed(vid, 0.0)  # it stands where its start was reserved from until the start
         st.sumo.colour(vid, "held")
 
     def start(self) -> None:
@@ -385,6 +421,9 @@ class Admission:
             req = got[0]
             mv = st.paths[rec.movement]
             prof = from_rest(st.t, req.D, st.sc.planning.u_max_mps2, min(mv.v_limit, st.sc.planning.v_max_mps))
-            st.sumo.resume(vid)
+            if st.sumo.is_stopped(vid):  # at its stop line; else in a queue before it: the stop is dropped
+                st.sumo.resume(vid)
+            else:
+                st.sumo.cancel_stop(vid)
             self.admit(got, Assignment(vid, rec.lane, st.t, prof.t_m, prof, rec.predecessor, rec.relation,
                                        rec.binding, rec.movement))

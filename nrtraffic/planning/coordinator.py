@@ -40,8 +40,7 @@ from typing import ClassVar
 
 from nrtraffic.planning.conflicts import CONFLICT
 from nrtraffic.planning.profiles import (InfeasibleProfile, PlanBounds, Profile, earliest_fixed, fixed_terminal,
-                                         free_terminal, max_time,
-                                         min_time, rear_end_constrained, rear_end_violation)
+                                         free_terminal, max_time, min_time, rear_end_constrained, rear_end_violation)
 
 
 # the rear-end constrained profile holds the gap at its grid instants (0.5 s apart); between them it
@@ -249,6 +248,8 @@ class Coordinator:
         if v_limit < v0:  # must cross slower than it enters: cruise, then brake on the arc
             v_cruise = v0 if cruise else None
             t_min = earliest_fixed(v0, min(v_limit, b.v_max_mps), D, b, v_cruise)
+        if v0 < b.v_min_mps:  # slow or standing: the earliest energy-optimal start to the crossing speed
+            t_min = max(t_min, earliest_fixed(v0, min(v_limit, b.v_max_mps), D, b))
         return t_min
 
     def _merge_time(self, r: Request, extra: tuple = ()):
@@ -390,6 +391,11 @@ class Coordinator:
                         moved = True
         return t_m, blocker
 
+    def reserved_after(self, t: float) -> bool:
+        """Whether a reservation of a conflict area (a plan or a reserved crossing) ends after
+        ``t`` [s]."""
+        return any(a.t_exit > t for a in self._reserved)
+
     def reserve_crossing(self, vehicle_id: str, lane: str, movement: str, t0: float, offsets: dict,
                          merge_window: tuple[float, float], exit_window: tuple[float, float],
                          v_exit_min: float) -> Assignment:
@@ -457,6 +463,10 @@ class Coordinator:
         return safe, rear_end_violation(safe, leader_pos, t_m, gap)
 
     def _profile(self, vehicle_id: str, t0: float, v0: float, D: float, t_m: float, v_limit: float) -> Profile:
+        """The energy-optimal plan to reach the merging zone at ``t_m`` within the bounds: with a
+        cruise at ``v_max`` or, for a long wait, at ``v_min`` where the bound is active; a slow or
+        standing car never slower than it is. ScheduleInfeasible where none fits: the car is held
+        (SUMO drives it on to its stop line, where its start from rest is reserved)."""
         b = self.bounds
         T = t_m - t0
         t_max = max_time(v0, D, b)
@@ -467,7 +477,6 @@ class Coordinator:
             )
         try:
             if self.settings.terminal_speed == "fixed":
-                # no slow crossing: a car that cannot make it at full (turn) speed waits at the entry
                 return fixed_terminal(t0, v0, min(v_limit, b.v_max_mps), D, T, b)
             prof = free_terminal(t0, v0, D, T, b)
             if prof.v_m > v_limit + 1e-9:

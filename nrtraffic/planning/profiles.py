@@ -241,9 +241,10 @@ def fixed_terminal(t0: float, v0: float, vm: float, D: float, T: float, bounds: 
         vs.append(v0 + b * tau_star + a * tau_star**2 / 2.0)
     us = [b, a * T + b]
     v_hi = max(bounds.v_max_mps, v0)
+    v_lo = min(bounds.v_min_mps, v0)  # (a slow or standing car: never slower than it is)
 
     def inside(vs, us):
-        return (min(vs) >= bounds.v_min_mps - 1e-9 and max(vs) <= v_hi + 1e-9
+        return (min(vs) >= v_lo - 1e-9 and max(vs) <= v_hi + 1e-9
                 and min(us) >= bounds.u_min_mps2 - 1e-9 and max(us) <= bounds.u_max_mps2 + 1e-9)
 
     if inside(vs, us):
@@ -257,9 +258,39 @@ def fixed_terminal(t0: float, v0: float, vm: float, D: float, T: float, bounds: 
             us = [arc[1] for arc in cruise] + [arc[1] + arc[2] * arc[0] for arc in cruise]
             if inside([v0, vm, vb], us):
                 return _build(t0, T, D, v0, "fixed_speed_cruise", cruise)
+    slow = _slow_arcs(v0, vm, D, T, bounds)
+    if slow is not None:
+        return _build(t0, T, D, v0, "fixed_speed_slow", slow)
     raise InfeasibleProfile(
         f"fixed-terminal profile v0={v0:.2f} -> vm={vm:.2f} m/s over D={D:.2f} m in T={T:.2f} s leaves the bounds"
     )
+
+
+def _slow_arcs(v0: float, vm: float, D: float, T: float, b: PlanBounds):
+    """Arcs ``(duration, u_start, jerk)`` of the fixed-terminal optimum with the lower speed bound
+    as a cruise arc (a long wait: the cubic would fall below ``v_min``), or None where they do not
+    fit in ``T`` within the acceleration bounds. The mirror of the upper-bound case (module
+    docstring): with ``d1 = v0 - v_min``, ``d2 = vm - v_min`` the arcs take ``s_i = mu sqrt(d_i)``,
+    ``mu = 3 (D - v_min T) / (d1^1.5 + d2^1.5)``, since ``D = v_min T + (d1 s1 + d2 s2) / 3``; the
+    first arc brakes with peak ``2 d1 / s1``, the last accelerates with peak ``2 d2 / s2``. *derived*"""
+    vb = b.v_min_mps
+    d1, d2 = v0 - vb, vm - vb
+    K = 3.0 * (D - vb * T)
+    if d1 < 0.0 or d2 < 0.0 or K <= 0.0 or d1 + d2 <= _TOL:
+        return None
+    mu = K / (d1**1.5 + d2**1.5)
+    s1, s2 = mu * math.sqrt(d1), mu * math.sqrt(d2)
+    if s1 + s2 > T + _TOL:
+        return None
+    if (s1 > _TOL and 2.0 * d1 / s1 > -b.u_min_mps2 + 1e-9) or (s2 > _TOL and 2.0 * d2 / s2 > b.u_max_mps2 + 1e-9):
+        return None
+    arcs = []
+    if s1 > _TOL:
+        arcs.append((s1, -2.0 * d1 / s1, 2.0 * d1 / s1**2))
+    arcs.append((max(T - s1 - s2, 0.0), 0.0, 0.0))
+    if s2 > _TOL:
+        arcs.append((s2, 0.0, 2.0 * d2 / s2**2))
+    return arcs
 
 
 def from_rest(t0: float, D: float, a: float, v_cap: float) -> Profile:
