@@ -1,19 +1,28 @@
 """A vehicle's life in a run: its record, its states and the legal transitions between them.
 
 Every vehicle of the demand passes through these states (one record per crossing of a junction; on
-a corridor a vehicle released by one junction starts a new record, and a new life, for the next):
+a corridor a vehicle released by one junction starts a new record, and a new life, for the next).
+The legal transitions (:data:`TRANSITIONS`):
 
-    waiting ──> approaching ──> batched ──> held ──> starting ──> controlled ──> released ──> gone
-                    │  └──────────┴───────────┴──────────┴──────────────^   │  └─> lost    │
-                    │                                         (next junction) <───────────┘
-    waiting ──> sumo ──> gone                                  human driver, next junction
-                  └──> human ──> reserved ──> crossing ──> crossed ──> gone
-                                                  └──────> human
+    waiting      -> approaching | sumo
+    approaching  -> batched | held | starting | controlled
+    batched      -> held | starting | controlled
+    held         -> starting | controlled
+    starting     -> controlled | lost
+    controlled   -> released | lost
+    released     -> approaching (its next junction) | gone
+    sumo         -> sumo (its next junction) | human | gone
+    human        -> reserved | gone
+    reserved     -> crossing | gone
+    crossing     -> crossed | human (its next junction) | gone
+    crossed      -> gone
 
 - ``approaching``: SUMO drives it towards (and into) its control zone at its entry speed;
 - ``batched``: in the control zone, waiting for its junction's batch (``policy = "batch"``);
-- ``held``: no merge time meets the bounds; SUMO stops it and it is tried again;
-- ``starting``: standing at its stop line, its start from rest reserved;
+- ``held``: no merge time meets the bounds; SUMO drives it on to its stop line and it is tried
+  again on the way;
+- ``starting``: standing at its stop line (or in a standing queue before it), its start from rest
+  reserved;
 - ``controlled``: the kernel drives it;
 - ``released``: past the merging zone, handed back to SUMO, still read as a possible leader;
 - ``sumo``: SUMO drives it throughout (a baseline, a scripted vehicle);
@@ -25,8 +34,8 @@ a corridor a vehicle released by one junction starts a new record, and a new lif
 :class:`Lifecycle` owns the state of every vehicle; each list of "who is where" that the run reads
 (:meth:`Lifecycle.members`) is a view of it, in the order the vehicles entered the queue they are in.
 An illegal transition raises :class:`IllegalTransition`. A vehicle whose crossing is not reserved
-yet and that stands or will stand at its stop line (a human driver, or a controlled vehicle queued
-behind one) is also marked on its entry lane (:meth:`Lifecycle.wait_at_line`): the vehicles behind
+yet and that stands or will stand at its stop line (a human driver, a held vehicle, or a controlled
+vehicle queued behind one) is also marked on its entry lane (:meth:`Lifecycle.wait_at_line`): the vehicles behind
 it on that lane wait for it.
 """
 

@@ -144,3 +144,26 @@ def test_split_internal_lanes_are_followed():
     assert len(internal) == 2
     for (_, a, _), (_, b, _) in zip(lanes, lanes[1:]):
         assert np.hypot(a[-1][0] - b[0][0], a[-1][1] - b[0][1]) < 0.01
+
+
+def test_a_stop_too_close_to_brake_for_stops_the_vehicle_as_soon_as_it_can(tmp_path):
+    """SUMO refuses a stop its driver can no longer brake for (13.9 m/s, 5 m ahead): the vehicle is
+    told to stop as soon as it can instead, and does, within the distance SUMO's braking needs
+    (13.9^2 / (2 x 4.5 m/s^2) = 21.4 m at SUMO's default deceleration, plus one step)."""
+    from conftest import ROOT
+
+    net = ROOT / "sumo_scenarios" / "cross4" / "net.net.xml"
+    routes = tmp_path / "r.rou.xml"
+    write_routes(routes, VehicleType(), {"NS": ("N_in", "S_out")}, [("v", "NS", 0.0, 13.89)])
+    with SumoSession(net, routes, 0.1, 1) as sumo:
+        while "v" not in sumo.vehicle_ids() or sumo.lane_position("v")[1] < 300.0:
+            sumo.step()
+        lane, pos = sumo.lane_position("v")
+        sumo.stop_at("v", lane, pos + 5.0)  # (refused by SUMO: no exception reaches the caller)
+        start = pos
+        for _ in range(100):
+            sumo.step()
+        lane2, pos2 = sumo.lane_position("v")
+        assert sumo.speed("v") == pytest.approx(0.0, abs=1e-6)
+        assert lane2 == lane and 5.0 < pos2 - start < 13.89**2 / (2 * 4.5) + 13.89 * 0.1 + 1.0
+        sumo.cancel_stop("v")  # nothing to drop: no error either

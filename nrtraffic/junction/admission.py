@@ -420,7 +420,8 @@ class Admission:
                 continue
             req = got[0]
             mv = st.paths[rec.movement]
-            prof = from_rest(st.t, req.D, st.sc.planning.u_max_mps2, min(mv.v_limit, st.sc.planning.v_max_mps))
+            prof = from_rest(st.t, max(req.D, 0.0), st.sc.planning.u_max_mps2,
+                             min(mv.v_limit, st.sc.planning.v_max_mps))
             if st.sumo.is_stopped(vid):  # at its stop line; else in a queue before it: the stop is dropped
                 st.sumo.resume(vid)
             else:

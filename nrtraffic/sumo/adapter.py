@@ -373,10 +373,14 @@ class SumoSession:
         """Make SUMO's driver stop with its front bumper at ``pos_m`` [m] on ``lane`` (a lane of a
         normal edge) and wait there until :meth:`resume`; from then on it disregards the right of
         way at the junction (speed mode 23: every other check stays on), which the coordinator's
-        reservation gives it instead."""
+        reservation gives it instead. Where it is already too close to brake for that stop (SUMO
+        refuses it), it is told to stop as soon as it can instead."""
         edge, index = lane.rsplit("_", 1)
         v = self.traci.vehicle
-        v.setStop(vid, edge, pos=float(pos_m), laneIndex=int(index), duration=1e7)
+        try:
+            v.setStop(vid, edge, pos=float(pos_m), laneIndex=int(index), duration=1e7)
+        except self.traci.TraCIException:  # too close to brake for it: it stops as soon as it can
+            v.setSpeed(vid, 0.0)
         v.setSpeedMode(vid, DEFAULT_SPEED_MODE & ~8)
 
     def is_stopped(self, vid: str) -> bool:
@@ -388,8 +392,10 @@ class SumoSession:
         return float(self.traci.vehicle.getSpeedFactor(vid))
 
     def cancel_stop(self, vid: str) -> None:
-        """Drop the stop of :meth:`stop_at` before the vehicle reaches it."""
-        self.traci.vehicle.replaceStop(vid, 0, "")
+        """Drop the stop of :meth:`stop_at` before the vehicle reaches it (nothing to drop where
+        SUMO had refused it)."""
+        if self.traci.vehicle.getStops(vid, 1):
+            self.traci.vehicle.replaceStop(vid, 0, "")
 
     def resume(self, vid: str) -> None:
         """End the stop of :meth:`stop_at`: SUMO's driver sets off."""
