@@ -177,8 +177,8 @@ class Admission:
 
     def try_admit(self, vid: str) -> str:
         """Admit a vehicle whose centre of gravity crossed the control-zone entry: "waiting" (not
-        there yet), "admitted", or "held" (no merge time meets the bounds: SUMO stops it at the
-        entry and admission is tried again every step, so that the lane's FIFO order is kept)."""
+        there yet), "admitted", or "held" (no merge time meets the bounds: :meth:`hold`; admission
+        is tried again every step, and the lane behind it waits, so that its FIFO order is kept)."""
         got = self.request(vid)
         if got is None:
             return "waiting"
@@ -197,8 +197,8 @@ class Admission:
         """``policy = "batch"``: vehicles that crossed the control-zone entry wait (driven on by
         SUMO at their speed) until ``batch_window_s`` after the first of them; then all waiting
         are scheduled together (:meth:`Coordinator.schedule_batch`) from their state at that
-        moment. Held ones (no feasible merge time) are stopped by SUMO and wait for the next batch,
-        which closes a window after they were held."""
+        moment. Held ones (no feasible merge time, :meth:`hold`) wait for the next batch, which
+        closes a window after they were held, or for their start from rest at the stop line."""
         st = self.st
         for vid in st.life.members(State.APPROACHING):
             if self.request(vid, entry_only=True):
