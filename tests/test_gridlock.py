@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from conftest import ROOT
@@ -60,8 +60,10 @@ class _CheckedEngine(Engine):
 
 
 @pytest.mark.parametrize("name", ["cross4", "tee3"])
-@settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=4, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(factor=st.floats(min_value=1.5, max_value=3.0), seed=st.integers(min_value=1, max_value=10_000))
+@example(factor=2.7879704303115034, seed=159)  # (once: every car committed to minutes-long plans, none crossing)
+@example(factor=2.0, seed=319)
 def test_oversaturated_arrivals_never_gridlock(name, factor, seed, tmp_path):
     """Random arrivals at 1.5-3 times the junction's capacity: the run is never stopped by the
     watchdog (60 s), the liveness invariant holds at every check, vehicles keep crossing to the

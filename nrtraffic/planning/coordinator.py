@@ -92,6 +92,10 @@ class CoordinatorSettings:
     batch_window_s : how long a batch collects vehicles [s].
     max_passed : how many later arrivals may be scheduled before a vehicle (the starvation cap of
         "batch"; 0 gives first-in-first-out order within each batch).
+    max_wait_s : the longest a plan may hold a vehicle back past its earliest arrival [s]; a
+        vehicle that would wait longer is not committed to a plan (which could not be brought
+        forward when the junction clears) but held, and asked again as it comes closer (0: no
+        limit).
     """
 
     rear_end_spacing_m: float = 10.0
@@ -104,6 +108,7 @@ class CoordinatorSettings:
     policy: str = "fifo"
     batch_window_s: float = 6.0
     max_passed: int = 3
+    max_wait_s: float = 60.0
 
     # the values each string setting takes (also the scenario file's JSON Schema)
     CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {
@@ -117,8 +122,8 @@ class CoordinatorSettings:
             if getattr(self, key) not in allowed:
                 raise ValueError(f"coordinator.{key} must be one of {', '.join(map(repr, allowed))}, "
                                  f"got {getattr(self, key)!r}")
-        if self.conflict_margin_s < 0:
-            raise ValueError("coordinator.conflict_margin_s must be >= 0")
+        if self.conflict_margin_s < 0 or self.max_wait_s < 0:
+            raise ValueError("coordinator.conflict_margin_s and coordinator.max_wait_s must be >= 0")
         if self.batch_window_s < 0 or self.max_passed < 0:
             raise ValueError("coordinator.batch_window_s and coordinator.max_passed must be >= 0")
         if self.policy == "batch" and self.conflict_model != "conflict_points":
@@ -219,7 +224,11 @@ class Coordinator:
     def schedule_request(self, r: Request) -> Assignment:
         """:meth:`schedule` for a :class:`Request`."""
         vehicle_id, lane, t0, v0, D, movement = r.vehicle_id, r.lane, r.t0, r.v0, r.D, r.movement
-        t_m, binding, pred, relation, prev, _ = self._merge_time(r)
+        t_m, binding, pred, relation, prev, t_early = self._merge_time(r)
+        wait_cap = self.settings.max_wait_s
+        if wait_cap > 0.0 and t_m - t_early > wait_cap:
+            raise ScheduleInfeasible(f"vehicle {vehicle_id}: it would wait {t_m - t_early:.1f} s past its earliest "
+                                     f"arrival, more than coordinator.max_wait_s = {wait_cap:g} s")
         prof = self._profile(vehicle_id, t0, v0, D, t_m, r.v_limit)
         intrusion = float("nan")
         if prev is not None:
