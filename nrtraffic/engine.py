@@ -320,13 +320,11 @@ class Engine:
         if stall <= 0:
             return
         for j in st.junctions.values():
-            if j.exits != j.exits_seen or st.t - j.idle_since < stall:
-                if j.exits != j.exits_seen or not self.admission.waiting(j):
-                    j.idle_since, j.exits_seen = st.t, j.exits
-                continue
             waiting = self.admission.waiting(j)
-            if not waiting:
-                j.idle_since = st.t
+            if j.exits != j.exits_seen or not waiting:
+                j.idle_since, j.exits_seen = st.t, j.exits
+                continue
+            if st.t - j.idle_since < stall:
                 continue
             names = ", ".join(f"{v} ({st.records[v].movement}, {st.records[v].status})" for v in waiting[:12])
             more = f" and {len(waiting) - 12} more" if len(waiting) > 12 else ""
