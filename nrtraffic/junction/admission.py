@@ -30,6 +30,9 @@ from nrtraffic.vehicle.fuel import fuel_rate
 
 # slack of a reserved start from rest of a controlled vehicle (its tracking error, in time) [s]
 FROM_REST_SLACK_S = 0.3
+# a vehicle entering the control zone slower than this share of its free-flow speed has been slowed
+# by the traffic ahead (a queue reaching back past the zone entry): it does not keep its entry speed
+QUEUED_SPEED_SHARE = 0.9
 
 
 class Admission:
@@ -171,7 +174,9 @@ class Admission:
         v_lim = mv.v_limit
         if rec.hindered:  # slowed behind a human: cross no faster than half the bound's acceleration reaches
             v_lim = min(v_lim, math.sqrt(v * v + st.sc.planning.u_max_mps2 * max(D, 0.0)))
-        req = Request(vid, rec.lane, st.t, v, D, rec.movement, mv.s_exit - mv.s_merge, v_lim, rec.hindered,
+        v_free = min(rec.v_free, st.sc.planning.v_max_mps) if rec.v_free > 0.0 else st.sc.planning.v_max_mps
+        queued = v < QUEUED_SPEED_SHARE * v_free
+        req = Request(vid, rec.lane, st.t, v, D, rec.movement, mv.s_exit - mv.s_merge, v_lim, rec.hindered or queued,
                       rec.approach in st.layout.upstream_junction)
         return req, x0, s_proj, lat0
 

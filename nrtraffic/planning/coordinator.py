@@ -34,8 +34,11 @@ Relations between movements come from :mod:`nrtraffic.planning.conflicts`.
 
 from __future__ import annotations
 
+import math
 import time
-from dataclasses import dataclass, field
+
+import numpy as np
+from dataclasses import dataclass, field, replace
 from typing import ClassVar
 
 from nrtraffic.planning.conflicts import CONFLICT
@@ -448,13 +451,35 @@ class Coordinator:
         lane leader's plan before this vehicle merges; with the remaining intrusion [m] (<= 0: none)."""
         if prev.occupancy is not None:  # a crossing without a plan (a human): the barrier keeps the gap
             return prof, float("nan")
-        gap = self.settings.rear_end_spacing_m
         lead = prev.profile
         shift = lead.D - D  # the leader's position in this vehicle's coordinates is p_lead - shift
 
         def leader_pos(t):
             return lead.evaluate(t)[0] - shift
 
+        # behind a leader whose plan crawls at about v_min (a slow car's plan may go down to min(v_min,
+        # v0)), or entering at about v_min, the follower may need to be slower than the leader for a
+        # while: its lowest speed is then half the lower of the two
+        bounds = self.bounds
+        grid = np.linspace(t0, t_m, max(2, int(math.ceil((t_m - t0) / 0.1)) + 1))
+        p_lead, v_lead, _ = lead.evaluate(grid)
+        p_lead = p_lead - shift
+        v_slow = min(v0, float(np.min(v_lead)))
+        if v_slow < 1.5 * bounds.v_min_mps:
+            bounds = replace(bounds, v_min_mps=max(0.5 * min(v_slow, bounds.v_min_mps), 1e-3))
+        # delta, or less where no plan can keep delta (cars entering in a queue, closer than delta):
+        # the spacing the slowest plan within the bounds keeps (braking at u_min to v_min, then at
+        # v_min) less half a metre, at least half a metre; at the merging zone the merge-time spacing
+        # gives delta
+        gap = self.settings.rear_end_spacing_m
+        tau = grid - t0
+        u_lo, v_floor = bounds.u_min_mps2, bounds.v_min_mps
+        t_brake = max(v0 - v_floor, 0.0) / -u_lo
+        p_slow = np.where(tau <= t_brake, v0 * tau + 0.5 * u_lo * tau**2,
+                          v0 * t_brake + 0.5 * u_lo * t_brake**2 + v_floor * (tau - t_brake))
+        keepable = float(np.min(p_lead - p_slow)) - 0.5
+        if keepable < gap:
+            gap = max(keepable, 0.5)
         # up to this vehicle's own merge time: past its merge time the leader crosses the zone at
         # constant speed (the profile's continuation), as the merge-time spacing assumes
         intrusion = rear_end_violation(prof, leader_pos, t_m, gap)
@@ -463,7 +488,7 @@ class Coordinator:
         vm = None if (self.settings.terminal_speed == "free" and not prof.kind.startswith("fixed_speed")) else prof.v_m
         try:
             tq = time.perf_counter()
-            safe = rear_end_constrained(t0, v0, D, t_m - t0, self.bounds, leader_pos, t_m, gap, vm=vm,
+            safe = rear_end_constrained(t0, v0, D, t_m - t0, bounds, leader_pos, t_m, gap, vm=vm,
                                         solver=self.settings.qp_solver)
         except InfeasibleProfile:
             return prof, intrusion
