@@ -1,3 +1,4 @@
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -63,7 +64,8 @@ def test_a_handed_over_follower_that_cannot_keep_behind_its_leader_is_not_commit
     bound u_min (closed form). With 8 m of room no plan exists. A vehicle handed over from a
     junction upstream is then refused and nothing is committed (the leader stays the lane's last);
     with 28 m of room it is planned behind the leader, keeping the gap everywhere. Any other
-    vehicle keeps its closed-form plan, its intrusion recorded (the barrier's case)."""
+    vehicle is planned as close as the bounds allow: the slowest plan (braking at u_min to the
+    leader's 4 m/s) comes within 20 - 13.5 = 6.5 m of it, so its plan keeps 6.5 - 0.5 = 6.0 m."""
     from nrtraffic.planning.profiles import rear_end_violation
 
     bounds = PlanBounds(u_min_mps2=-3.0)
@@ -76,9 +78,13 @@ def test_a_handed_over_follower_that_cannot_keep_behind_its_leader_is_not_commit
     shift = lead.profile.D - ok.profile.D
     assert rear_end_violation(ok.profile, lambda t: lead.profile.evaluate(t)[0] - shift, ok.t_merge, 12.0) <= 0.05
     c2 = Coordinator(CoordinatorSettings(rear_end_spacing_m=12.0, min_merge_headway_s=1.0), bounds)
-    c2.schedule("lead", "L", 0.0, 4.0, 200.0)
+    lead2 = c2.schedule("lead", "L", 0.0, 4.0, 200.0)
     kept = c2.schedule("fast", "L", 0.0, 13.0, 200.0 + 20.0)
-    assert kept.plan_intrusion_m > 1.0
+    assert kept.profile.kind == "rear_end" and kept.plan_intrusion_m <= 0.05
+    t = np.linspace(0.0, kept.t_merge, 2001)
+    spacing = lead2.profile.evaluate(t)[0] + 20.0 - kept.profile.evaluate(t)[0]  # centre to centre [m]
+    assert spacing.min() >= 6.0 - 0.06
+    assert spacing.min() <= 6.5  # and no more room than the bounds give
 
 
 def test_batch_serves_a_lane_mate_before_the_cross_flow_by_hand():

@@ -33,6 +33,9 @@ FROM_REST_SLACK_S = 0.3
 # a vehicle entering the control zone slower than this share of its free-flow speed has been slowed
 # by the traffic ahead (a queue reaching back past the zone entry): it does not keep its entry speed
 QUEUED_SPEED_SHARE = 0.9
+# a batch closes early when one of its vehicles comes within this time of the last point where it
+# can still stop before the merging zone [s]
+BATCH_CLOSE_S = 1.0
 
 
 class Admission:
@@ -237,7 +240,7 @@ class Admission:
             if rec.status == "held":
                 rec.t_held += dt
         self.account_waiting(pending, dt)
-        if not pending or st.t < j.batch_closes - 1e-9:
+        if not pending or (st.t < j.batch_closes - 1e-9 and not self.must_close(pending, waiting)):
             return
         got = {}
         for vid in pending:
@@ -256,6 +259,26 @@ class Admission:
         for vid in held:
             self.hold(vid)
         j.batch_closes = st.t + st.sc.coordinator.batch_window_s if self.pending(j) else math.inf
+
+    def must_close(self, pending: list[str], waiting: set[str]) -> bool:
+        """Whether a batch must close before its window ends: a vehicle in it (driven on by SUMO at
+        its speed) comes within ``BATCH_CLOSE_S`` of the last point where it can still stop before
+        the merging zone at the planning's ``u_min`` (on a short control zone that is as soon as
+        it enters: it is scheduled from its state on entry)."""
+        st = self.st
+        tab = st.snap
+        brake = -st.sc.planning.u_min_mps2
+        for vid in pending:
+            k = tab.row.get(vid)
+            if vid in waiting or k is None:
+                continue
+            s = st.cg_on_path(vid)
+            if s is None:
+                continue
+            v = float(tab.speed[k])
+            if st.paths[st.records[vid].movement].s_merge - s <= v * v / (2.0 * brake) + v * BATCH_CLOSE_S:
+                return True
+        return False
 
     def account_waiting(self, vids: list[str], dt: float) -> None:
         """Energy and fuel of vehicles in the control zone that SUMO still drives (waiting for their
@@ -387,13 +410,15 @@ class Admission:
     def standing(self, vid: str) -> bool:
         """Whether a controlled vehicle waiting at its lane's stop line stands: at the stop line, or
         anywhere on its path in a standing queue (its start from rest is then reserved from there:
-        the queue sets off as a platoon, not one car at a time from the line)."""
+        the queue sets off as a platoon, not one car at a time from the line), or, where it could
+        not stop before it, in the merging zone."""
         st = self.st
         k = st.snap.row.get(vid)
         if k is None or st.snap.speed[k] >= 0.1:
             return False
         s = st.cg_on_path(vid)
-        return s is not None and st.paths[st.records[vid].movement].s_merge - s > 0.0
+        # (a vehicle that could not stop before the merging zone stands in it: it starts from there)
+        return s is not None and st.paths[st.records[vid].movement].s_exit - s > 0.0
 
     def reserve_from_rest(self, vid: str) -> None:
         """Reserve the start of a controlled vehicle standing at the stop line: from rest at the

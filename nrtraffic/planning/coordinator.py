@@ -19,13 +19,17 @@ the way to it: a follower can catch up with a leader whose plan slows down deepl
 conflict). When the closed-form profile comes closer than ``delta`` to the leader's plan anywhere
 before its own merge time (the leader's plan continues at constant speed past its merge), it is
 replaced by the energy-optimal profile with that rear-end constraint
-(:func:`~nrtraffic.planning.profiles.rear_end_constrained`, a QP); if that QP has no solution, the
-closed form is kept, its intrusion into the gap is recorded, and the longitudinal barrier keeps
-the cars apart. A vehicle handed over from a junction upstream (``Request.handed_over``) gets no
+(:func:`~nrtraffic.planning.profiles.rear_end_constrained`, a QP). A vehicle that enters closer
+than ``delta`` behind its leader (in a queue reaching back past the zone entry) keeps the spacing
+the slowest plan within the bounds can keep, and may go slower than ``v_min`` behind a crawling
+leader. If that QP has no solution, the closed form is kept, its intrusion into the gap is
+recorded, and the longitudinal barrier keeps the cars apart. A vehicle handed over from a junction upstream (``Request.handed_over``) gets no
 such plan: its request fails, and it asks again once SUMO's driver has made room.
 
 ``T_earliest`` is ``D / v0`` (cruise at the entry speed, as Malikopoulos et al. 2018 and the paper:
-an unhindered vehicle keeps its speed) or the bound-limited minimum time, whichever is longer;
+an unhindered vehicle keeps its speed) or the bound-limited minimum time, whichever is longer; a
+vehicle slowed before its entry (``Request.hindered``: behind a human driver, or in a queue) gets
+the bound-limited minimum time;
 ``delta`` is the rear-end spacing [m] and ``h_min`` a minimum merge headway [s]. The energy-optimal
 free-terminal profile for ``T = t_m - t0`` is then computed in closed form.
 
@@ -235,7 +239,7 @@ class Coordinator:
         prof = self._profile(vehicle_id, t0, v0, D, t_m, r.v_limit)
         intrusion = float("nan")
         if prev is not None:
-            prof, intrusion = self._keep_behind(prof, prev, t0, v0, D, t_m)
+            prof, intrusion = self._keep_behind(prof, prev, t0, v0, D, t_m, strict=r.handed_over)
             if r.handed_over and intrusion > REAR_END_TOL_M:
                 raise ScheduleInfeasible(f"vehicle {vehicle_id}: no plan within the bounds keeps "
                                          f"{self.settings.rear_end_spacing_m:g} m behind {prev.vehicle_id}'s "
@@ -446,9 +450,14 @@ class Coordinator:
         return a
 
     def _keep_behind(self, prof: Profile, prev: Assignment, t0: float, v0: float, D: float,
-                     t_m: float) -> tuple[Profile, float]:
+                     t_m: float, strict: bool = False) -> tuple[Profile, float]:
         """``prof``, or the rear-end constrained profile when ``prof`` runs into the gap behind the
-        lane leader's plan before this vehicle merges; with the remaining intrusion [m] (<= 0: none)."""
+        lane leader's plan before this vehicle merges; with the remaining intrusion [m] (<= 0: none).
+
+        The gap is ``delta``, or, where no plan within the bounds can keep ``delta`` (a vehicle
+        entering in a queue, closer than ``delta`` to its leader), the spacing the slowest such plan
+        keeps, less half a metre (at least half a metre); the intrusion is measured against that
+        gap. ``strict`` (a vehicle handed over from a junction upstream): always ``delta``."""
         if prev.occupancy is not None:  # a crossing without a plan (a human): the barrier keeps the gap
             return prof, float("nan")
         lead = prev.profile
@@ -478,7 +487,7 @@ class Coordinator:
         p_slow = np.where(tau <= t_brake, v0 * tau + 0.5 * u_lo * tau**2,
                           v0 * t_brake + 0.5 * u_lo * t_brake**2 + v_floor * (tau - t_brake))
         keepable = float(np.min(p_lead - p_slow)) - 0.5
-        if keepable < gap:
+        if keepable < gap and not strict:
             gap = max(keepable, 0.5)
         # up to this vehicle's own merge time: past its merge time the leader crosses the zone at
         # constant speed (the profile's continuation), as the merge-time spacing assumes

@@ -73,4 +73,5 @@ def human_crossing(bounds: CrossingBounds, areas: dict, d_merge: float, d_exit: 
     :meth:`~nrtraffic.planning.coordinator.Coordinator.reserve_crossing` takes them."""
     offsets = {o: bounds.window(max(a, 0.0), max(b, 0.0)) for o, (a, b) in areas.items()}
     v_exit = speed_from_rest(d_exit, bounds.a_lo, bounds.v_lo)
+    # (a vehicle standing in the merging zone has passed its entry: d_merge < 0, entered now)
     return offsets, bounds.window(d_merge, d_merge), bounds.window(d_exit, d_exit), v_exit
