@@ -163,9 +163,10 @@ class Demand:
         return out
 
     def route_edges(self, route: str) -> tuple[str, ...]:
-        """The edges of a demand route: a turning movement's, or a corridor trip's (:attr:`itineraries`)."""
+        """The edges of a demand route: a turning movement's, or a corridor trip's (:attr:`itineraries`),
+        from the start of the road that feeds its first approach (``Layout.feeders``)."""
         legs = self.itineraries.get(route, (route,))
-        edges = list(self.movement_table[legs[0]][2])
+        edges = [*self.layout.feeders.get(legs[0], ()), *self.movement_table[legs[0]][2]]
         for leg in legs[1:]:
             edges += list(self.movement_table[leg][2][1:])
         return tuple(edges)
@@ -245,7 +246,6 @@ class Demand:
             h = self.sc.human
             types.append(VehicleType("human", params.length, params.width, h.min_gap_m, h.accel_mps2, h.decel_mps2,
                                      v_max, h.sigma, h.tau_s, h.speed_dev, h.car_follow_model))
-        routes = {k: v[2] for k, v in self.movement_table.items()}
-        routes.update({k: self.route_edges(k) for k in self.itineraries})
+        routes = {k: self.route_edges(k) for k in [*self.movement_table, *self.itineraries]}
         write_routes(path, types, routes, demand)
         return demand

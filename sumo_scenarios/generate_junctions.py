@@ -1,5 +1,5 @@
 """Regenerate the plain XML and networks of the junction scenarios (cross4, cross4_2lane, tee3,
-cross4_curved, corridor3), and convert the hand-drawn station_mill.
+cross4_curved, corridor3, cross4_short), and convert the hand-drawn station_mill.
 
 Every arm is one lane each way (cross4_2lane: two lanes out, and in two lanes and a left-turn
 lane, with the lane use of ``net.con.xml``), 520 m long, 50 km/h (13.89 m/s); the junction node "C" is at the
@@ -25,6 +25,7 @@ HERE = Path(__file__).resolve().parent
 ARM = 520.0  # [m]
 SPEED = 13.89  # [m/s]
 CURVE_R = 600.0  # [m]
+SHORT_ARM = 50.0  # cross4_short: the link into the junction [m]
 
 
 def _arc_points(n=130):
@@ -125,6 +126,26 @@ def corridor3() -> None:
     write_view("corridor3")
 
 
+def cross4_short() -> None:
+    """cross4 whose arms are 50 m links fed by 470 m roads upstream (a node between them, as at a
+    minor side road or a change of road type): the control zone can only be as long as the 50 m
+    link allows."""
+    d = HERE / "cross4_short"
+    d.mkdir(exist_ok=True)
+    nodes = ['    <node id="C" x="0.0" y="0.0" type="priority"/>']
+    edges = []
+    for arm, (ux, uy) in {"N": (0, 1), "E": (1, 0), "S": (0, -1), "W": (-1, 0)}.items():
+        nodes.append(f'    <node id="{arm}" x="{ux * ARM:.1f}" y="{uy * ARM:.1f}" type="priority"/>')
+        nodes.append(f'    <node id="{arm}m" x="{ux * SHORT_ARM:.1f}" y="{uy * SHORT_ARM:.1f}" type="priority"/>')
+        for f, t, name in ((arm, f"{arm}m", f"{arm}_up_in"), (f"{arm}m", "C", f"{arm}_in"),
+                           ("C", f"{arm}m", f"{arm}_out"), (f"{arm}m", arm, f"{arm}_up_out")):
+            edges.append(f'    <edge id="{name}" from="{f}" to="{t}" numLanes="1" speed="{SPEED}"/>')
+    (d / "net.nod.xml").write_text("<nodes>\n" + "\n".join(nodes) + "\n</nodes>\n")
+    (d / "net.edg.xml").write_text("<edges>\n" + "\n".join(edges) + "\n</edges>\n")
+    build_network(d / "net.nod.xml", d / "net.edg.xml", d / "net.net.xml")
+    write_view("cross4_short")
+
+
 def station_mill() -> None:
     """station_mill is drawn by hand (its plain XML is the source, not written here): only
     converted, with netconvert's options of ``station_mill/README.md``."""
@@ -143,6 +164,7 @@ def main() -> None:
     curved = dict(four, N=arc[-1])
     write("cross4_curved", curved, shapes={"N": arc})
     corridor3()
+    cross4_short()
     station_mill()
 
 

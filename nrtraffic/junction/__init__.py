@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from nrtraffic.geometry import LanePath
-from nrtraffic.sumo.network import edge_nodes, junction_movements
+from nrtraffic.sumo.network import edge_nodes, feeder_roads, junction_movements
 from nrtraffic.planning.coordinator import Coordinator
 
 
@@ -99,7 +99,9 @@ class Layout:
     movement -> the junction it crosses; ``next_junction`` / ``upstream_junction``: edge -> the
     controlled junction it leads into / comes from, where there is one (a corridor);
     ``entry_approaches``: where demand enters (the approaches that do not come from another
-    controlled junction).
+    controlled junction); ``feeders``: turning movement -> the road upstream of its approach
+    that only feeds it (:func:`~nrtraffic.sumo.network.feeder_roads`), where the demand's
+    vehicles start.
     """
 
     def __init__(self, sc, network_path):
@@ -109,6 +111,7 @@ class Layout:
         self.junctions: dict[str, Junction] = {}
         self.next_junction: dict[str, str] = {}
         self.upstream_junction: dict[str, str] = {}
+        self.feeders: dict[str, tuple[str, ...]] = {}
         specs = sc.controlled_junctions()
         for j in specs:
             moves, xy = junction_movements(network_path, j.id)
@@ -117,6 +120,10 @@ class Layout:
                 self.movement_table[m.route] = (m.in_edge, m.turn, (m.in_edge, m.out_edge))
                 self.lane_movements.setdefault(m.route, []).append((m.lane, m.name, m.in_lane, m.out_lane))
                 self.movement_junction[m.route] = j.id
+        if specs:
+            ids = {j.id for j in specs}
+            for route, (edge, _, _) in self.movement_table.items():
+                self.feeders[route] = feeder_roads(network_path, edge, ids)
         if len(specs) > 1:
             nodes = edge_nodes(network_path)
             self.next_junction = {e: to for e, (_, to) in nodes.items() if to in self.junctions}

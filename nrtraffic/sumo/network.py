@@ -85,6 +85,30 @@ def junction_movements(net_path: Path, junction_id: str) -> tuple[list[JunctionM
     return out, (float(x), float(y))
 
 
+def feeder_roads(net_path: Path, edge_id: str, stop_at: set[str]) -> tuple[str, ...]:
+    """The road that feeds ``edge_id`` from upstream, in order of driving: the edges before it
+    across nodes that join it to one other road only (a change of road type, a bend drawn as a
+    node), up to a junction (a node with a third road), a node in ``stop_at`` (a controlled
+    junction) or the network's edge. Empty when ``edge_id`` starts at a junction."""
+    net = read_net(net_path)
+    chain: list[str] = []
+    edge = net.getEdge(edge_id)
+    seen = {edge_id}
+    while True:
+        node = edge.getFromNode()
+        if node.getID() in stop_at:
+            break
+        normal = [e for e in (*node.getIncoming(), *node.getOutgoing()) if e.getFunction() != "internal"]
+        neighbours = {(e.getFromNode() if e.getToNode() is node else e.getToNode()).getID() for e in normal}
+        ins = [e for e in node.getIncoming() if e.getFunction() != "internal" and e.getFromNode() is not edge.getToNode()]
+        if len(neighbours) != 2 or len(ins) != 1 or ins[0].getID() in seen or edge not in ins[0].getOutgoing():
+            break
+        edge = ins[0]
+        seen.add(edge.getID())
+        chain.append(edge.getID())
+    return tuple(reversed(chain))
+
+
 def edge_nodes(net_path: Path) -> dict[str, tuple[str, str]]:
     """Every normal edge of the network: ``edge id -> (from junction, to junction)``."""
     return {e.getID(): (e.getFromNode().getID(), e.getToNode().getID())
