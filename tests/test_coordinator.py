@@ -150,3 +150,37 @@ def test_batch_keeps_lane_order_the_cap_and_every_reservation(arrivals, cap, mar
 def test_batch_needs_conflict_points():
     with pytest.raises(ValueError, match="conflict_points"):
         CoordinatorSettings(terminal_speed="fixed", policy="batch")
+
+
+def test_a_standing_queue_sets_off_front_first_and_a_car_behind_it_is_planned_behind_its_start():
+    """Two cars standing on one lane, 20 m and 60 m before the zone, start from rest (2.5 m/s^2 up
+    to 10 m/s). The one farther back could reach the zone in time for a start before the front
+    one's, but starts no sooner than h_min = 1 s after it. A car arriving at 10 m/s, 15 m behind the
+    second one (75 m before the zone), is planned behind the second one's start (standing_start,
+    closed form): it cannot keep 12 m (braking from 10 m/s at 3 m/s^2 takes 16.7 m), but its plan
+    stays more than half a metre behind it everywhere, where the closed-form plan to the same merge
+    time would run into the standing car."""
+    from nrtraffic.planning.crossing import CrossingBounds, human_crossing
+    from nrtraffic.planning.profiles import fixed_terminal, standing_start
+
+    b = CrossingBounds(2.5, 2.5, 10.0, 10.0, 0.0)
+    c = Coordinator(CoordinatorSettings(rear_end_spacing_m=12.0, min_merge_headway_s=1.0, terminal_speed="fixed",
+                                        conflict_model="conflict_points", policy="batch"), PlanBounds())
+
+    def stand(vid, D, t0):
+        offsets, mw, ew, v_exit = human_crossing(b, {}, D, D + 30.0)
+        return c.reserve_crossing(vid, "L", "a", t0, offsets, mw, ew, v_exit, start=(D, 2.5, 10.0))
+
+    front = stand("front", 20.0, 5.0)
+    back = stand("back", 60.0, 5.0)
+    assert front.t_release == pytest.approx(5.0)
+    assert back.t_release == pytest.approx(front.t_release + 1.0)
+    moving = c.schedule_request(Request("moving", "L", 5.0, 10.0, 75.0, "a", 30.0, 10.0))
+    lead = standing_start(5.0, back.t_release, 60.0, 2.5, 10.0)  # independent of the coordinator's copy
+    # (12 m is more than the 15 m it has can keep while braking from 10 m/s: the spacing the slowest
+    # plan keeps, less half a metre, is its gap)
+    t = np.linspace(5.0, moving.t_merge, 2001)
+    spacing = lead.evaluate(t)[0] + 15.0 - moving.profile.evaluate(t)[0]
+    assert moving.profile.kind == "rear_end" and spacing.min() > 0.5
+    free = fixed_terminal(5.0, 10.0, 10.0, 75.0, moving.t_merge - 5.0, PlanBounds())
+    assert (lead.evaluate(t)[0] + 15.0 - free.evaluate(t)[0]).min() < 0.0  # (it would run into it)

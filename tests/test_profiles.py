@@ -285,3 +285,20 @@ def test_a_standing_car_with_too_long_a_wait_is_refused():
     it is held and starts from rest at its stop line."""
     with pytest.raises(InfeasibleProfile):
         fixed_terminal(0.0, 0.0, 13.89, 300.0, 200.0, B_JUNCTION)
+
+
+def test_a_standing_start_waits_then_accelerates_as_the_closed_form():
+    """Standing 40 m before the zone from t = 10 s, setting off at 13 s at 2.5 m/s^2 up to 10 m/s:
+    p = 0 until 13 s, then 1.25 (t - 13)^2 up to 17 s (20 m, 10 m/s), then 20 + 10 (t - 17);
+    the merging zone (40 m) is reached at 19 s."""
+    from nrtraffic.planning.profiles import standing_start
+
+    prof = standing_start(10.0, 13.0, 40.0, 2.5, 10.0)
+    t = np.linspace(10.0, 25.0, 301)
+    p, v, _ = prof.evaluate(t)
+    expect = np.where(t < 13.0, 0.0, np.where(t < 17.0, 1.25 * (t - 13.0) ** 2, 20.0 + 10.0 * (t - 17.0)))
+    assert np.allclose(p, expect, atol=1e-9)
+    assert np.allclose(v, np.gradient(expect, t), atol=0.2)  # (the kink's neighbours)
+    assert prof.t_m == pytest.approx(19.0)
+    with pytest.raises(InfeasibleProfile):
+        standing_start(10.0, 9.0, 40.0, 2.5, 10.0)

@@ -96,8 +96,9 @@ def reserve(st, vid: str, bounds: CrossingBounds):
     s_cg = st.cg_on_path(vid)
     areas = {other: (mv.s_merge + lo - s_cg, mv.s_merge + hi - s_cg) for other, (lo, hi) in areas_of(st, rec).items()}
     offsets, merge_w, exit_w, v_exit = human_crossing(bounds, areas, mv.s_merge - s_cg, mv.s_exit - s_cg)
+    start = (max(mv.s_merge - s_cg, 0.0), bounds.a_lo, bounds.v_lo)  # its slowest start, for a follower's plan
     asg = st.junctions[rec.junction].coord.reserve_crossing(vid, rec.lane, body(rec), st.t, offsets, merge_w, exit_w,
-                                                            v_exit)
+                                                            v_exit, start)
     rec.t_release = asg.t_release
     rec.t_merge_planned, rec.v_merge_planned = asg.t_merge, asg.profile.v_m
     rec.predecessor, rec.relation, rec.binding = asg.predecessor, asg.relation, asg.binding

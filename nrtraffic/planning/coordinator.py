@@ -47,7 +47,8 @@ from typing import ClassVar
 
 from nrtraffic.planning.conflicts import CONFLICT
 from nrtraffic.planning.profiles import (InfeasibleProfile, PlanBounds, Profile, earliest_fixed, fixed_terminal,
-                                         free_terminal, max_time, min_time, rear_end_constrained, rear_end_violation)
+                                         free_terminal, max_time, min_time, rear_end_constrained, rear_end_violation,
+                                         standing_start)
 
 
 # the rear-end constrained profile holds the gap at its grid instants (0.5 s apart); between them it
@@ -156,6 +157,7 @@ class Assignment:
     plan_intrusion_m: float = float("nan")  # how far the plan enters the gap behind the lane leader's plan [m]
     t_release: float = float("nan")  # a reserved crossing (:meth:`Coordinator.reserve_crossing`): its start [s]
     occupancy: dict | None = None  # ... and its occupancy of each conflict area: other movement -> (in, out) [s]
+    motion: Profile | None = None  # ... and its slowest start (standing_start), that a follower keeps behind
 
 
 @dataclass(frozen=True)
@@ -414,7 +416,7 @@ class Coordinator:
 
     def reserve_crossing(self, vehicle_id: str, lane: str, movement: str, t0: float, offsets: dict,
                          merge_window: tuple[float, float], exit_window: tuple[float, float],
-                         v_exit_min: float) -> Assignment:
+                         v_exit_min: float, start: tuple[float, float, float] | None = None) -> Assignment:
         """Reserve the crossing of a vehicle that starts from rest (a human driver standing at the
         stop line, ``demand.controlled_share``, or a controlled car queued behind one), first come
         first served: the
@@ -424,18 +426,25 @@ class Coordinator:
         request must then keep clear of ``t + offsets``. ``merge_window`` and ``exit_window``: its
         earliest and latest merging-zone entry and exit [s after the start]; ``v_exit_min``: its
         lowest speed at the exit [m/s] (the spacing of a vehicle behind it on its lane, planned
-        from its latest entry and exit). Returns the assignment, ``t_release`` the start.
+        from its latest entry and exit); ``start``: ``(D, a, v_cap)``, its distance to the
+        merging zone [m] and its slowest start from rest, which a vehicle planned behind it on its
+        lane keeps behind (:func:`~nrtraffic.planning.profiles.standing_start`; without it, the
+        barrier alone keeps the gap). Returns the assignment, ``t_release`` the start.
 
         Behind the last vehicle ``j`` of its lane, as :meth:`schedule` spaces a lane: its earliest
         entry no sooner than ``h_min`` after j's (latest) entry, and its earliest exit no sooner
         than ``delta / max(v_exit_min, v_min)`` after j's (latest) exit, so that it does not start
-        before the vehicle ahead of it and the vehicle ahead does not hold it back."""
+        before the vehicle ahead of it and the vehicle ahead does not hold it back; when j starts
+        from rest too (a standing queue), no sooner than ``h_min`` after j's start (a car far back
+        in the queue would otherwise set off before the one ahead of it and run into it)."""
         t_start, binding, pred, relation = t0, "earliest", None, "none"
         prev = self._last_on_lane.get(lane)
         if prev is not None:
             spacing_t = self.settings.rear_end_spacing_m / max(v_exit_min, self.bounds.v_min_mps)
             t_same = max(prev.t_merge + self.settings.min_merge_headway_s - merge_window[0],
                          prev.t_exit + spacing_t - exit_window[0])
+            if not math.isnan(prev.t_release):  # it also starts from rest: not before it sets off
+                t_same = max(t_same, prev.t_release + self.settings.min_merge_headway_s)
             pred, relation = prev.vehicle_id, "same_lane"
             if t_same > t_start:
                 t_start, binding = t_same, "rear_end"
@@ -443,8 +452,9 @@ class Coordinator:
         if blocker is not None:
             pred, relation, binding = blocker, "conflict", "conflict"
         occ = {o: (t + a, t + b) for o, (a, b) in offsets.items()}
+        motion = None if start is None else standing_start(t0, t, *start)
         a = Assignment(vehicle_id, lane, t0, t + merge_window[1], Crossing(max(v_exit_min, 1e-3)), pred, relation,
-                       binding, movement, t + exit_window[1], t_release=t, occupancy=occ)
+                       binding, movement, t + exit_window[1], t_release=t, occupancy=occ, motion=motion)
         self._last_on_lane[lane] = a
         self._reserved = [x for x in self._reserved if x.t_exit + self.settings.conflict_margin_s > t0] + [a]
         return a
@@ -458,9 +468,9 @@ class Coordinator:
         entering in a queue, closer than ``delta`` to its leader), the spacing the slowest such plan
         keeps, less half a metre (at least half a metre); the intrusion is measured against that
         gap. ``strict`` (a vehicle handed over from a junction upstream): always ``delta``."""
-        if prev.occupancy is not None:  # a crossing without a plan (a human): the barrier keeps the gap
+        if prev.occupancy is not None and prev.motion is None:  # a crossing without a plan: the barrier keeps the gap
             return prof, float("nan")
-        lead = prev.profile
+        lead = prev.profile if prev.motion is None else prev.motion  # (a start from rest: its slowest)
         shift = lead.D - D  # the leader's position in this vehicle's coordinates is p_lead - shift
 
         def leader_pos(t):

@@ -305,6 +305,19 @@ def from_rest(t0: float, D: float, a: float, v_cap: float) -> Profile:
     return _build(t0, travel_time(D, a, v_cap), D, 0.0, "from_rest", [(v_cap / a, a, 0.0)])
 
 
+def standing_start(t0: float, t_start: float, D: float, a: float, v_cap: float) -> Profile:
+    """A vehicle standing ``D`` [m] before its merging zone from ``t0`` that sets off at
+    ``t_start`` at constant acceleration ``a`` [m/s^2] up to ``v_cap`` [m/s] (:func:`from_rest`
+    with the wait before it): the motion a follower on its lane plans behind."""
+    if not (a > 0.0 and v_cap > 0.0 and D >= 0.0 and t_start >= t0):
+        raise InfeasibleProfile(f"a standing start needs a > 0, v_cap > 0, D >= 0, t_start >= t0 "
+                                f"(got {a}, {v_cap}, {D}, {t_start} < {t0})")
+    from nrtraffic.planning.crossing import travel_time
+
+    return _build(t0, t_start - t0 + travel_time(D, a, v_cap), D, 0.0, "from_rest",
+                  [(t_start - t0, 0.0, 0.0), (v_cap / a, a, 0.0)])
+
+
 def _cruise_arcs(v0: float, vm: float, D: float, T: float, vb: float):
     """Arcs ``(duration, u_start, jerk)`` of the fixed-terminal optimum with the cruise arc at
     ``vb`` (module docstring), or None when they do not fit in ``T``."""
