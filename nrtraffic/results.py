@@ -506,7 +506,7 @@ def run_summary(f: RunFacts, veh: pd.DataFrame, trips: dict, demand_veh_h, statu
     if window > 0 and not exits:
         warnings.append("no vehicle left a merging zone in the measurement window")
     if served is not None and served < 0.9:
-        warnings.append(f"served {100 * served:.0f} % of the demand in the window (below 90 %)")
+        warnings.append(f"served {100 * served:.1f} % of the demand in the window (below 90 %)")
     if due:
         warnings.append(f"{len(due)} vehicles due to depart could not enter the network yet (mean wait "
                         f"{np.mean([sim_t - t for t in due]):.0f} s, not in the delay)")
