@@ -3,7 +3,10 @@ scheduled, batched, held or started from rest, and the hand-over from one juncti
 
 A vehicle SUMO inserts (``waiting``) is ``approaching``; once its centre of gravity crosses the
 control-zone entry the coordinator of its junction is asked for a merge time, one vehicle at a time
-(``policy = "fifo"``) or a batch of them (``"batch"``: ``batched`` until the batch closes). With a
+(``policy = "fifo"``) or a batch of them (``"batch"``: ``batched`` until the batch closes, or
+earlier where a vehicle of it would otherwise come too close to the merging zone to stop: a short
+control zone). A vehicle that enters slower than ``QUEUED_SPEED_SHARE`` of its free-flow speed
+(in a queue) is asked for its earliest arrival within the bounds, not at its entry speed. With a
 merge time it is ``controlled``: the kernel drives it on its energy-optimal profile (or, for a long
 wait, a stop before the zone and a start from rest). Without one it is ``held``: SUMO drives it on
 to its stop line, asking again on the way; standing there its start from rest is reserved, which

@@ -182,8 +182,9 @@ class Request:
     movement: str = ""
     zone_length_m: float = 0.0
     v_limit: float = float("inf")
-    # slowed before its entry by a vehicle it cannot pass (a human driver ahead): it does not keep
-    # an entry speed, so its earliest arrival is the one the bounds allow
+    # slowed before its entry by a vehicle it cannot pass (a human driver ahead, or a queue reaching
+    # back past the zone entry): it does not keep an entry speed, so its earliest arrival is the one
+    # the bounds allow
     hindered: bool = False
     # handed over from a junction upstream (a corridor): it may come in fast, close behind a slow
     # leader that turned onto its road; a plan that cannot keep behind the leader's is then not
