@@ -102,8 +102,9 @@ class CoordinatorSettings:
         "batch"; 0 gives first-in-first-out order within each batch).
     max_wait_s : the longest a plan may hold a vehicle back past its earliest arrival [s]; a
         vehicle that would wait longer is not committed to a plan (which could not be brought
-        forward when the junction clears) but held, and asked again as it comes closer (0: no
-        limit).
+        forward when the junction clears) but held, and asked again as it comes closer (0, the
+        default: no limit). Past capacity a limit costs throughput: the held cars stop at the
+        stop line and start from rest, which passes fewer cars than the queue's own plans.
     """
 
     rear_end_spacing_m: float = 10.0
@@ -116,7 +117,7 @@ class CoordinatorSettings:
     policy: str = "fifo"
     batch_window_s: float = 6.0
     max_passed: int = 3
-    max_wait_s: float = 60.0
+    max_wait_s: float = 0.0
 
     # the values each string setting takes (also the scenario file's JSON Schema)
     CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {
