@@ -23,7 +23,8 @@ replaced by the energy-optimal profile with that rear-end constraint
 than ``delta`` behind its leader (in a queue reaching back past the zone entry) keeps the spacing
 the slowest plan within the bounds can keep, and may go slower than ``v_min`` behind a crawling
 leader. If that QP has no solution, the closed form is kept, its intrusion into the gap is
-recorded, and the longitudinal barrier keeps the cars apart. A vehicle handed over from a junction upstream (``Request.handed_over``) gets no
+recorded, and the longitudinal barrier keeps the cars apart. A vehicle handed over from a junction
+upstream (``Request.handed_over``) gets no
 such plan: its request fails, and it asks again once SUMO's driver has made room.
 
 ``T_earliest`` is ``D / v0`` (cruise at the entry speed, as Malikopoulos et al. 2018 and the paper:
@@ -40,16 +41,15 @@ from __future__ import annotations
 
 import math
 import time
-
-import numpy as np
 from dataclasses import dataclass, field, replace
 from typing import ClassVar
+
+import numpy as np
 
 from nrtraffic.planning.conflicts import CONFLICT
 from nrtraffic.planning.profiles import (InfeasibleProfile, PlanBounds, Profile, earliest_fixed, fixed_terminal,
                                          free_terminal, max_time, min_time, rear_end_constrained, rear_end_violation,
                                          standing_start)
-
 
 # the rear-end constrained profile holds the gap at its grid instants (0.5 s apart); between them it
 # may enter the gap by millimetres. A plan that enters it by more is counted as unresolved [m].
