@@ -43,7 +43,7 @@ from nrtraffic.planning.coordinator import Coordinator
 from nrtraffic.results import (RunFacts, RunResult, TrajectoryWriter, approach_table, parse_queues, read_tripinfo,
                                run_summary, vehicle_table)
 from nrtraffic.state import RunState
-from nrtraffic.sumo.adapter import SumoSession, sumo_version, write_sumocfg
+from nrtraffic.sumo.adapter import SumoSession, VehicleType, handover_tau_s, sumo_version, write_sumocfg
 from nrtraffic.sumo.network import NetworkError
 
 CHECKPOINT_WALL_S = 10.0  # wall time between checkpoints of the figures (``checkpoint``) [s]
@@ -57,6 +57,18 @@ WALL_PHASES = ("kernel", "sumo_step", "sumo_io", "admission", "qp", "leaders", "
 class Gridlock(RuntimeError):
     """A junction made no progress: no vehicle left its merging zone for ``outputs.stall_s`` while
     vehicles waited there."""
+
+
+def _interrupt_in(exc: BaseException) -> BaseException | None:
+    """The Ctrl-C or SIGTERM behind ``exc``, if any: one that arrives while a compiled (numba)
+    function runs surfaces as that function's SystemError, with the interrupt as its context."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None
 
 
 class RunFailed(RuntimeError):
@@ -120,6 +132,10 @@ class Engine:
         self.progress = progress
         self.params = scenario.vehicle.params()
         self.kernel = Kernel(scenario, self.params, self.seed)
+        c = scenario.coordinator  # SUMO's headway for the vehicles it gets back (handover_tau_s)
+        self.handover_tau = handover_tau_s(c.rear_end_spacing_m, c.min_merge_headway_s, self.params.length,
+                                           VehicleType.min_gap_m, scenario.planning.v_max_mps,
+                                           scenario.sumo.step_length_s)
         self.layout: Layout | None = None
         self.demand: Demand | None = None
         self.st: RunState | None = None
@@ -185,7 +201,7 @@ class Engine:
                 self.traj.close()
             raise
         except (Exception, KeyboardInterrupt) as exc:  # keep what was finished
-            error = exc
+            error = _interrupt_in(exc) or exc
         wall = time.perf_counter() - self.wall0
         if self.traj is not None:
             try:
@@ -353,7 +369,7 @@ class Engine:
             vid = ctl.ids[i]
             st.records[vid].acc = ctl.acc[i].copy()
             if done[i]:
-                st.sumo.release(vid)
+                st.sumo.release(vid, self.handover_tau)
                 st.life.move(vid, State.RELEASED)
                 st.sumo.colour(vid, "released")
                 self.admission.next_leg(vid)  # (a corridor: on to the next junction)

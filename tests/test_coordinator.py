@@ -184,3 +184,39 @@ def test_a_standing_queue_sets_off_front_first_and_a_car_behind_it_is_planned_be
     assert moving.profile.kind == "rear_end" and spacing.min() > 0.5
     free = fixed_terminal(5.0, 10.0, 10.0, 75.0, moving.t_merge - 5.0, PlanBounds())
     assert (lead.evaluate(t)[0] + 15.0 - free.evaluate(t)[0]).min() < 0.0  # (it would run into it)
+
+
+def test_a_car_close_behind_a_standing_queue_whose_start_is_far_off_is_held_or_kept_behind_it():
+    """A car stands 335 m before the zone; cross traffic holds its conflict area for 106 s, so its
+    start from rest (2.5 m/s^2 up to 13.89 m/s) is reserved about 80 s on. A car arrives at 4.4 m/s,
+    13 m behind it (a standing queue reaching back past the zone entry, past capacity). The
+    closed-form plan to its merge time crawls at v_min while the standing car waits: it would run
+    tens of metres into it. The coordinator either plans it behind the standing start (never
+    within half a metre of it, centre to centre) or refuses it, committing nothing (it is then
+    held, stops behind the queue and starts from rest after it); it never hands out a plan that
+    runs into the standing car."""
+    from nrtraffic.planning.crossing import CrossingBounds, human_crossing
+    from nrtraffic.planning.profiles import fixed_terminal, standing_start
+
+    bounds = PlanBounds(v_min_mps=1.0, v_max_mps=13.89, u_min_mps2=-3.0, u_max_mps2=2.5)
+    c = Coordinator(CoordinatorSettings(rear_end_spacing_m=12.0, min_merge_headway_s=1.0, terminal_speed="fixed",
+                                        conflict_model="conflict_points", policy="batch"), bounds)
+    c.areas = {("a", "b"): (0.0, 5.0), ("b", "a"): (0.0, 5.0)}
+    c.reserve_crossing("cross", "M", "b", 0.0, {"a": (0.0, 106.0)}, (0.0, 0.0), (106.0, 106.0), 13.89)
+    b = CrossingBounds(2.5, 2.5, 13.89, 13.89, 0.0)
+    offsets, mw, ew, v_exit = human_crossing(b, {"b": (335.3, 340.3)}, 335.3, 365.3)
+    stand = c.reserve_crossing("stand", "L", "a", 0.0, offsets, mw, ew, v_exit, start=(335.3, 2.5, 13.89))
+    assert stand.t_release > 70.0
+    lead = standing_start(0.0, stand.t_release, 335.3, 2.5, 13.89)  # independent of the coordinator's copy
+    t0, v0, D = 3.1, 4.36, 348.4
+    try:
+        got = c.schedule_request(Request("close", "L", t0, v0, D, "a", 30.0, 13.89, hindered=True))
+    except ScheduleInfeasible:
+        assert c._last_on_lane["L"] is stand  # nothing committed
+        t_m = stand.t_merge + 1.0
+        free = fixed_terminal(t0, v0, 13.89, D, t_m - t0, bounds)
+        t = np.linspace(t0, t_m, 4001)
+        assert (lead.evaluate(t)[0] + (D - 335.3) - free.evaluate(t)[0]).min() < -20.0  # (the closed form runs into it)
+        return
+    t = np.linspace(t0, got.t_merge, 4001)
+    assert (lead.evaluate(t)[0] + (D - 335.3) - got.profile.evaluate(t)[0]).min() > 0.5

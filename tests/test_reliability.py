@@ -216,3 +216,23 @@ def test_a_junction_the_car_cannot_drive_exits_2_naming_the_movement(edit, messa
     assert main(["run", str(d), "--out", str(out), "--duration", "5", "--no-progress"]) == 2
     assert message in capsys.readouterr().err
     assert not out.exists() or not any(out.iterdir())  # nothing was simulated, nothing is left
+
+
+def test_an_interrupt_inside_compiled_code_is_reported_as_the_interrupt():
+    """A SIGTERM that arrives while a numba function runs surfaces as that function's SystemError
+    ("returned a result with an exception set"), with the interrupt as its context: the run reports
+    the interrupt, not the SystemError."""
+    from nrtraffic.engine import _interrupt_in
+
+    class Terminated(KeyboardInterrupt):
+        pass
+
+    try:
+        try:
+            raise Terminated("terminated by SIGTERM")
+        except Terminated:
+            raise SystemError("CPUDispatcher(<function touching_pairs>) returned a result with an exception set")
+    except SystemError as exc:
+        got = _interrupt_in(exc)
+    assert isinstance(got, Terminated) and "SIGTERM" in str(got)
+    assert _interrupt_in(ValueError("no interrupt here")) is None

@@ -167,3 +167,63 @@ def test_a_stop_too_close_to_brake_for_stops_the_vehicle_as_soon_as_it_can(tmp_p
         assert sumo.speed("v") == pytest.approx(0.0, abs=1e-6)
         assert lane2 == lane and 5.0 < pos2 - start < 13.89**2 / (2 * 4.5) + 13.89 * 0.1 + 1.0
         sumo.cancel_stop("v")  # nothing to drop: no error either
+
+
+def _platoon_speeds(tmp_path, tau_s, spacing_m, v_mps):
+    """SUMO alone (its own binary) drives two cars of nrtraffic's type with desired headway
+    ``tau_s`` on a straight 1 km road, inserted ``spacing_m`` apart centre to centre at ``v_mps``:
+    the follower's speeds [m/s] over 30 s, from SUMO's FCD output (None where SUMO could not insert
+    it at that spacing)."""
+    import subprocess
+    import xml.etree.ElementTree as ET
+
+    from nrtraffic.sumo.netbuild import build_network, sumo_binary
+
+    tmp_path.mkdir()
+    (tmp_path / "n.nod.xml").write_text('<nodes><node id="a" x="0" y="0"/><node id="b" x="1000" y="0"/></nodes>')
+    (tmp_path / "e.edg.xml").write_text(f'<edges><edge id="r" from="a" to="b" numLanes="1" speed="{v_mps}"/></edges>')
+    net = build_network(tmp_path / "n.nod.xml", tmp_path / "e.edg.xml", tmp_path / "r.net.xml")
+    vt = VehicleType(max_speed_mps=v_mps, tau_s=tau_s)
+    (tmp_path / "r.rou.xml").write_text(
+        f'<routes>{vt.xml()}<route id="r" edges="r"/>'
+        f'<vehicle id="lead" type="auto" route="r" depart="0" departPos="{60.0 + spacing_m}" departSpeed="{v_mps}"/>'
+        f'<vehicle id="follow" type="auto" route="r" depart="0" departPos="60" departSpeed="{v_mps}"/></routes>')
+    fcd = tmp_path / "fcd.xml"
+    subprocess.run([sumo_binary("sumo"), "-n", str(net), "-r", str(tmp_path / "r.rou.xml"), "--step-length", "0.1",
+                    "--end", "30", "--fcd-output", str(fcd), "--no-step-log", "true", "--no-warnings", "true",
+                    "--max-depart-delay", "0"], check=True, capture_output=True)
+    speeds = [float(v.get("speed")) for ts in ET.parse(fcd).getroot() for v in ts if v.get("id") == "follow"]
+    return speeds or None
+
+
+@pytest.mark.parametrize("spacing_m, v_mps", [(13.89, 13.89), (12.0, 12.0), (12.0, 6.5)])
+def test_sumo_keeps_the_planned_spacing_of_a_released_platoon(tmp_path, spacing_m, v_mps):
+    """Released past the merging zone, consecutive cars of a lane are max(delta, h_min v) apart
+    (delta = 12 m, h_min = 1 s): 13.89 m at 13.89 m/s, 12 m at 12 m/s (where the two meet, the
+    tightest case) and at a turn's 6.5 m/s. With handover_tau_s, SUMO's own Krauss driver keeps
+    that spacing at constant speed (SUMO's output); with SUMO's default tau = 1 s it cannot: it
+    refuses to insert the follower that close at that speed (Krauss: speed kept only while the gap
+    less minGap is at least tau v)."""
+    from nrtraffic.sumo.adapter import handover_tau_s
+
+    tau = handover_tau_s(12.0, 1.0, 4.8, 2.5, 13.89, 0.1)
+    assert 0.1 <= tau < 1.0
+    kept = _platoon_speeds(tmp_path / "short", tau, spacing_m, v_mps)
+    assert kept is not None and min(kept) >= v_mps - 1e-6
+    # Krauss' condition by hand: gap less minGap >= tau v
+    assert spacing_m - 4.8 - 2.5 >= tau * v_mps
+    if spacing_m - 4.8 - 2.5 < 1.0 * v_mps:
+        default = _platoon_speeds(tmp_path / "default", 1.0, spacing_m, v_mps)
+        assert default is None or min(default) < v_mps - 0.5
+
+
+def test_handover_tau_by_hand():
+    """0.9 of min over v of (max(delta, h v) - L - minGap) / v: at v = delta / h = 12 m/s,
+    (12 - 7.3) / 12 = 0.3917 s, so 0.3525 s; without h_min (delta = 10 m at every speed), at
+    v_max = 13.89 m/s: 0.9 (10 - 7.3) / 13.89 = 0.1749 s; never below one step, never above 1 s."""
+    from nrtraffic.sumo.adapter import handover_tau_s
+
+    assert handover_tau_s(12.0, 1.0, 4.8, 2.5, 13.89, 0.1) == pytest.approx(0.9 * 4.7 / 12.0)
+    assert handover_tau_s(10.0, 0.0, 4.8, 2.5, 13.89, 0.1) == pytest.approx(0.9 * 2.7 / 13.89)
+    assert handover_tau_s(8.0, 0.0, 4.8, 2.5, 13.89, 0.1) == 0.1
+    assert handover_tau_s(40.0, 3.0, 4.8, 2.5, 13.89, 0.1) == 1.0

@@ -22,10 +22,12 @@ replaced by the energy-optimal profile with that rear-end constraint
 (:func:`~nrtraffic.planning.profiles.rear_end_constrained`, a QP). A vehicle that enters closer
 than ``delta`` behind its leader (in a queue reaching back past the zone entry) keeps the spacing
 the slowest plan within the bounds can keep, and may go slower than ``v_min`` behind a crawling
-leader. If that QP has no solution, the closed form is kept, its intrusion into the gap is
-recorded, and the longitudinal barrier keeps the cars apart. A vehicle handed over from a junction
-upstream (``Request.handed_over``) gets no
-such plan: its request fails, and it asks again once SUMO's driver has made room.
+leader. If that QP has no solution, the closed form is kept where it runs at most
+``HOLD_INTRUSION_M`` into the gap (its intrusion is recorded, and the longitudinal barrier keeps the
+cars apart); beyond that the request fails: the vehicle is held, stops behind its leader and starts
+from rest behind it (a car entering close behind a standing queue whose start is far off). A
+vehicle handed over from a junction upstream (``Request.handed_over``) gets no such plan: its
+request fails, and it asks again once SUMO's driver has made room.
 
 ``T_earliest`` is ``D / v0`` (cruise at the entry speed, as Malikopoulos et al. 2018 and the paper:
 an unhindered vehicle keeps its speed) or the bound-limited minimum time, whichever is longer; a
@@ -54,6 +56,11 @@ from nrtraffic.planning.profiles import (InfeasibleProfile, PlanBounds, Profile,
 # the rear-end constrained profile holds the gap at its grid instants (0.5 s apart); between them it
 # may enter the gap by millimetres. A plan that enters it by more is counted as unresolved [m].
 REAR_END_TOL_M = 0.05
+# a plan that would run further than this into the gap behind its leader's plan (no plan within the
+# bounds keeps behind it: a car entering close behind a standing queue whose start is far off) is not
+# given; the car is held, stops behind its leader and starts from where it stands, in its lane's
+# order. Smaller intrusions are left to the barrier, which keeps the real gap [m]
+HOLD_INTRUSION_M = 2.0
 
 
 class ScheduleInfeasible(InfeasibleProfile):
@@ -244,7 +251,7 @@ class Coordinator:
         intrusion = float("nan")
         if prev is not None:
             prof, intrusion = self._keep_behind(prof, prev, t0, v0, D, t_m, strict=r.handed_over)
-            if r.handed_over and intrusion > REAR_END_TOL_M:
+            if intrusion > (REAR_END_TOL_M if r.handed_over else HOLD_INTRUSION_M):
                 raise ScheduleInfeasible(f"vehicle {vehicle_id}: no plan within the bounds keeps "
                                          f"{self.settings.rear_end_spacing_m:g} m behind {prev.vehicle_id}'s "
                                          f"(it would come {intrusion:.2f} m closer)")

@@ -103,6 +103,26 @@ class VehicleType:
                 f'speedDev="{self.speed_dev:g}" sigma="{self.sigma:g}" tau="{self.tau_s:g}"/>')
 
 
+def handover_tau_s(spacing_m: float, headway_s: float, length_m: float, min_gap_m: float, v_max_mps: float,
+                   step_s: float) -> float:
+    """The desired headway ``tau`` [s] SUMO's car-following (Krauss) gives a controlled vehicle
+    once it has left the merging zone, so that SUMO keeps the spacing the coordinator planned
+    instead of braking a released platoon car after car (a wave that runs back into the merging
+    zone and the control zone behind it: with SUMO's 1 s, 1 s merges at 13.89 m/s are too close).
+
+    Krauss keeps speed behind a leader at the same speed ``v`` while the gap it sees (bumper to
+    bumper, less ``minGap``) is at least ``tau v``: ``vsafe = -b tau + sqrt((b tau)^2 + v^2 + 2 b g)
+    >= v`` if and only if ``g >= tau v``. Consecutive merges of a lane are ``max(delta, h_min v)``
+    apart centre to centre (``spacing_m``, ``headway_s``), so ``tau`` is 0.9 of the lowest
+    ``(max(delta, h_min v) - L - minGap) / v`` over ``0 < v <= v_max`` (reached at ``v_max`` or at
+    ``v = delta / h_min``), at least one SUMO step and at most SUMO's default 1 s. *derived*"""
+    speeds = [v_max_mps]
+    if headway_s > 0.0 and 0.0 < spacing_m / headway_s < v_max_mps:
+        speeds.append(spacing_m / headway_s)
+    tau = min((max(spacing_m, headway_s * v) - length_m - min_gap_m) / v for v in speeds)
+    return min(1.0, max(0.9 * tau, step_s))
+
+
 def write_sumocfg(path: Path, network: Path, routes: Path, step_length_s: float) -> None:
     """A SUMO configuration that opens ``network`` with ``routes`` (``sumo-gui -c path``), paths
     relative to its own folder."""
@@ -426,11 +446,14 @@ class SumoSession:
             except Exception as exc:
                 raise SumoError(f"moveToXY of {vid} failed at t={self.time:.2f} s: {exc}") from None
 
-    def release(self, vid: str) -> None:
-        """Hand a vehicle back to SUMO's own driving."""
+    def release(self, vid: str, tau_s: float | None = None) -> None:
+        """Hand a vehicle back to SUMO's own driving; ``tau_s``: its desired headway [s] from now
+        on (:func:`handover_tau_s`), or its type's."""
         v = self.traci.vehicle
         v.setSpeedMode(vid, DEFAULT_SPEED_MODE)
         v.setSpeed(vid, -1)
+        if tau_s is not None:
+            v.setTau(vid, tau_s)
 
     def collisions(self) -> list[tuple[str, str, str]]:
         """Collisions SUMO detected in the last step: (collider, victim, type)."""
