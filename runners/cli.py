@@ -41,7 +41,8 @@ def _add_run(sub) -> None:
     p.add_argument("--out", type=Path, default=None, metavar="DIR",
                    help="run directory (default: runs/<scenario>-seed<N>)")
     p.add_argument("--force", action="store_true",
-                   help="replace what is in --out when it is not a finished run of this configuration")
+                   help="replace the earlier run's files in --out when it is not a finished run of this configuration "
+                        "(the folder's other files stay)")
     p.add_argument("--allow-outside", action="store_true",
                    help="let the scenario name files outside its own folder (refused by default)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
@@ -75,7 +76,8 @@ def _add_baseline(sub) -> None:
     p.add_argument("--duration", type=_duration, default=None, metavar="S", help="simulated time [s]")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="run directory")
     p.add_argument("--force", action="store_true",
-                   help="replace what is in --out when it is not a finished run of this configuration")
+                   help="replace the earlier run's files in --out when it is not a finished run of this configuration "
+                        "(the folder's other files stay)")
     p.add_argument("--allow-outside", action="store_true",
                    help="let the scenario name files outside its own folder (refused by default)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",

@@ -59,15 +59,20 @@ RUN_FILES = ("summary.json", "vehicles.csv", "movements.csv", "approaches.csv", 
              "trajectories.parquet.tmp", "trajectories.partial.arrows", "scenario.resolved.toml", "movements.json",
              "movements.png", "delays.png", "queues.png", "time_space.png", "report.html", "tripinfo.xml",
              "collisions.xml", "fcd.xml", "queues.xml", "summary.json.tmp", "vehicles.csv.tmp", "movements.csv.tmp",
-             "approaches.csv.tmp", "sumo")
+             "approaches.csv.tmp")
+# ... and into its sumo/ folder, beside the copy of the network (and a baseline's rebuilt network,
+# ``<network stem>.<control>.net.xml``)
+RUN_SUMO_FILES = ("routes.rou.xml", "queues.add.xml", "run.sumocfg", "tls_offsets.add.xml")
 
 
 def claim_run_dir(out: Path, sc: scenario_mod.Scenario, seed: int | None, duration_s: float | None, control: str,
                   force: bool = False) -> None:
     """Make ``out`` ready for a run: a missing or empty folder, or a finished run of the same
     configuration and control (run again), is taken as it is. Any other non-empty folder is refused
-    (ValueError) unless ``force``; then the files a run writes are removed from it first, so that
-    nothing of an earlier run stays beside the new one."""
+    (ValueError) unless ``force``; then the files an earlier run wrote are removed from it first, so
+    that nothing of it stays beside the new one. Files of the user's own are never removed, nor
+    overwritten: a folder where no run has been that holds a file a run would write (its network
+    copy in ``sumo/``, say) is refused even with ``force``."""
     out = Path(out)
     if not out.is_dir() or not any(out.iterdir()):
         return
@@ -81,17 +86,52 @@ def claim_run_dir(out: Path, sc: scenario_mod.Scenario, seed: int | None, durati
     if not (same or force):
         raise ValueError(f"--out {out} is not empty and is not a finished run of this configuration: "
                          "choose another folder, or --force to replace the run in it")
-    remove_run_files(out)
+    if not _was_run_dir(out):
+        theirs = [n for n in (*RUN_FILES, *(f"sumo/{f}" for f in (*RUN_SUMO_FILES, sc.network_path.name)))
+                  if (out / n).exists() and not (out / n).resolve() == sc.network_path.resolve()]
+        if theirs:
+            raise ValueError(f"--out {out} holds files no run wrote that a run would overwrite ({', '.join(theirs)}): "
+                             "--force replaces an earlier run's files only; choose another folder")
+    remove_run_files(out, keep=sc.network_path)
 
 
-def remove_run_files(out: Path) -> None:
-    """Remove from ``out`` the files a run writes (:data:`RUN_FILES`), and nothing else."""
-    for name in RUN_FILES:
-        p = Path(out) / name
-        if p.is_dir():
+def _was_run_dir(out: Path) -> bool:
+    """Whether a run has been in ``out``: it left its resolved scenario or its summary there."""
+    return (out / "scenario.resolved.toml").is_file() or (out / "summary.json").is_file()
+
+
+def remove_run_files(out: Path, keep: Path | None = None) -> None:
+    """Remove from ``out`` the files a run writes (:data:`RUN_FILES`; in ``sumo/``
+    :data:`RUN_SUMO_FILES`, and the network copy that its ``scenario.resolved.toml`` names, with a
+    baseline's rebuilt networks beside it), and nothing else: where no run has been, ``sumo/`` is
+    left as it is, and ``keep`` (the scenario's own network, where ``out`` is its folder) always
+    stays. ``sumo/`` itself goes once it is empty."""
+    import glob
+    import re
+
+    out = Path(out)
+    sdir = out / "sumo"
+    names = []
+    if sdir.is_dir() and _was_run_dir(out):
+        names = [sdir / n for n in RUN_SUMO_FILES]
+        try:
+            m = re.search(r'^network = "sumo/([^"/]+)"', (out / "scenario.resolved.toml").read_text(), re.M)
+        except OSError:
+            m = None
+        if m:
+            net = sdir / m.group(1)
+            names += [net, *sdir.glob(f"{glob.escape(net.stem)}.*.net.xml")]  # (runners/baseline.py)
+    for p in [out / n for n in RUN_FILES] + names:
+        if keep is not None and p.exists() and p.resolve() == Path(keep).resolve():
+            continue
+        if p.is_dir() and not p.is_symlink():
             shutil.rmtree(p, ignore_errors=True)
-        elif p.exists():
+        elif p.exists() or p.is_symlink():
             p.unlink()
+    try:
+        sdir.rmdir()  # (only when empty)
+    except OSError:
+        pass
 
 
 def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: float | None, progress: bool,
@@ -111,7 +151,7 @@ def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: 
     try:
         result = engine.run()
     except NetworkError:  # the junction or its zones do not suit: nothing was simulated, nothing is kept
-        remove_run_files(out)
+        remove_run_files(out, keep=sc.network_path)
         raise
     except RunFailed as exc:
         exc.result.summary.update(extra_summary or {})

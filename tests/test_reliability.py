@@ -195,6 +195,34 @@ def test_out_holding_another_run_is_refused_unless_forced(tmp_path, capsys):
     assert main(["baseline", str(CROSS4), "--junction", "priority", "--out", str(other), "--duration", "4"]) == 2
 
 
+def test_force_never_removes_or_overwrites_the_users_own_files(tmp_path, capsys):
+    """``--force`` into a folder of the user's own files, where no run has been: their files in
+    ``sumo/`` stay, through the run and through a forced run after it; where a run would overwrite
+    one of them (a network of the same name as the scenario's), it is refused with exit 2 and the
+    file is untouched."""
+    mine = tmp_path / "mine"
+    (mine / "sumo").mkdir(parents=True)
+    (mine / "sumo" / "my_network.net.xml").write_text("<net/>")
+    (mine / "notes.txt").write_text("mine")
+    base = ["run", str(CROSS4), "--out", str(mine), "--no-progress", "--force"]
+    assert main(base + ["--duration", "4"]) == 0
+    assert main(base + ["--duration", "5"]) == 0  # replaces the run's files, and only those
+    assert (mine / "sumo" / "my_network.net.xml").read_text() == "<net/>"
+    assert (mine / "notes.txt").read_text() == "mine"
+    assert json.loads((mine / "summary.json").read_text())["sim_time_s"] == pytest.approx(5.0)
+    assert main(["baseline", str(CROSS4), "--junction", "priority", "--out", str(mine), "--duration", "4",
+                 "--force"]) == 0
+    assert (mine / "sumo" / "my_network.net.xml").read_text() == "<net/>"
+    clash = tmp_path / "clash"
+    (clash / "sumo").mkdir(parents=True)
+    own = clash / "sumo" / "net.net.xml"  # the name of cross4's network copy
+    own.write_text("<my own net/>")
+    capsys.readouterr()
+    assert main(["run", str(CROSS4), "--out", str(clash), "--duration", "4", "--no-progress", "--force"]) == 2
+    assert "sumo/net.net.xml" in capsys.readouterr().err
+    assert own.read_text() == "<my own net/>" and not (clash / "summary.json").exists()
+
+
 @pytest.mark.parametrize("edit, message", [
     # netconvert's default corner (4 m) and junction-lane detail (5 points): a 126-degree turn too
     # tight for the car
