@@ -41,7 +41,7 @@ golden: $(STAMP)
 	rm -rf $(GOLDEN)
 	NUMBA_CPU_NAME=generic $(BIN)/nrtraffic run sumo_scenarios/cross4/scenario.toml --seed 7 --duration 75 \
 	    --set demand.end_s=25 --set demand.rate_veh_h=600 --set outputs.trajectory_interval_s=0.5 --set outputs.warmup_s=0 --out $(GOLDEN) --no-progress
-	rm -f $(addprefix $(GOLDEN)/,movements.png delays.png queues.png time_space.png report.html)
+	rm -f $(addprefix $(GOLDEN)/,movements.png delays.png queues.png time_space.png report.html manifest.json)
 
 # numba's on-disk cache does not notice edits in the modules a kernel calls: clear it after editing
 clean-cache:

@@ -317,8 +317,12 @@ def _cmd_run(args) -> int:
 def _report(out: Path) -> None:
     """The run's figures and ``report.html`` (single runs and baselines; a sweep's runs get none)."""
     from nrtraffic.report import run_report
+    from runners.single import update_manifest
 
-    run_report(out)
+    try:
+        run_report(out)
+    finally:
+        update_manifest(out)
 
 
 def _print_summary(s: dict, out: Path) -> None:

@@ -27,6 +27,7 @@ def prepare_run_dir(sc: scenario_mod.Scenario, out: Path) -> Path:
     check(sc)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    begin_manifest(out)
     (out / "sumo").mkdir(exist_ok=True)
     net = sc.network_path
     dst = out / "sumo" / net.name
@@ -54,25 +55,55 @@ def resolved_text(sc: scenario_mod.Scenario, seed: int | None, duration_s: float
     return scenario_mod.dumps(resolve(sc, seed, duration_s), network=f"sumo/{sc.network_path.name}")
 
 
-# what a run writes into its directory (``--force`` removes these, and nothing else)
+# the run directory's list of what the run created in it (``--force`` removes those, and nothing else)
+MANIFEST = "manifest.json"
+# what a run of an earlier version (without a manifest) wrote into its directory
 RUN_FILES = ("summary.json", "vehicles.csv", "movements.csv", "approaches.csv", "trajectories.parquet",
              "trajectories.parquet.tmp", "trajectories.partial.arrows", "scenario.resolved.toml", "movements.json",
              "movements.png", "delays.png", "queues.png", "time_space.png", "report.html", "tripinfo.xml",
              "collisions.xml", "fcd.xml", "queues.xml", "summary.json.tmp", "vehicles.csv.tmp", "movements.csv.tmp",
              "approaches.csv.tmp")
-# ... and into its sumo/ folder, beside the copy of the network (and a baseline's rebuilt network,
-# ``<network stem>.<control>.net.xml``)
-RUN_SUMO_FILES = ("routes.rou.xml", "queues.add.xml", "run.sumocfg", "tls_offsets.add.xml")
+
+
+def _tree(out: Path) -> set[str]:
+    """Every file and folder under ``out``, relative to it (POSIX paths)."""
+    return {p.relative_to(out).as_posix() for p in out.rglob("*")}
+
+
+def begin_manifest(out: Path) -> None:
+    """Start ``out``'s manifest: what is there before the run (none of it is the run's)."""
+    out = Path(out)
+    pre = sorted(_tree(out) - {MANIFEST})
+    _write_json(out / MANIFEST, {"preexisting": pre, "created": []})
+
+
+def update_manifest(out: Path) -> None:
+    """Record in ``out``'s manifest every file and folder the run has created so far (all that is
+    there now and was not before it); called with every checkpoint and at the end."""
+    out = Path(out)
+    try:
+        m = json.loads((out / MANIFEST).read_text())
+    except (OSError, ValueError):
+        return
+    pre = set(m.get("preexisting", []))
+    m["created"] = sorted((_tree(out) - pre - {MANIFEST}) | set(m.get("created", [])))
+    _write_json(out / MANIFEST, m)
+
+
+def _write_json(path: Path, obj) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=1) + "\n")
+    tmp.replace(path)
 
 
 def claim_run_dir(out: Path, sc: scenario_mod.Scenario, seed: int | None, duration_s: float | None, control: str,
                   force: bool = False) -> None:
     """Make ``out`` ready for a run: a missing or empty folder, or a finished run of the same
     configuration and control (run again), is taken as it is. Any other non-empty folder is refused
-    (ValueError) unless ``force``; then the files an earlier run wrote are removed from it first, so
-    that nothing of it stays beside the new one. Files of the user's own are never removed, nor
-    overwritten: a folder where no run has been that holds a file a run would write (its network
-    copy in ``sumo/``, say) is refused even with ``force``."""
+    (ValueError) unless ``force``; then what the earlier run created there (its manifest,
+    :data:`MANIFEST`) is removed first, so that nothing of it stays beside the new one, and nothing
+    else is: a non-empty folder without a manifest (the user's own files, or a run of an earlier
+    version) is refused even with ``force``."""
     out = Path(out)
     if not out.is_dir() or not any(out.iterdir()):
         return
@@ -86,52 +117,38 @@ def claim_run_dir(out: Path, sc: scenario_mod.Scenario, seed: int | None, durati
     if not (same or force):
         raise ValueError(f"--out {out} is not empty and is not a finished run of this configuration: "
                          "choose another folder, or --force to replace the run in it")
-    if not _was_run_dir(out):
-        theirs = [n for n in (*RUN_FILES, *(f"sumo/{f}" for f in (*RUN_SUMO_FILES, sc.network_path.name)))
-                  if (out / n).exists() and not (out / n).resolve() == sc.network_path.resolve()]
-        if theirs:
-            raise ValueError(f"--out {out} holds files no run wrote that a run would overwrite ({', '.join(theirs)}): "
-                             "--force replaces an earlier run's files only; choose another folder")
+    if not same and not (out / MANIFEST).is_file():
+        raise ValueError(f"--out {out} is not empty and holds no run's {MANIFEST} (files of your own, or a run of "
+                         "an earlier version): --force removes only what a run recorded there; choose another "
+                         "folder, or empty this one yourself")
     remove_run_files(out, keep=sc.network_path)
 
 
-def _was_run_dir(out: Path) -> bool:
-    """Whether a run has been in ``out``: it left its resolved scenario or its summary there."""
-    return (out / "scenario.resolved.toml").is_file() or (out / "summary.json").is_file()
-
-
 def remove_run_files(out: Path, keep: Path | None = None) -> None:
-    """Remove from ``out`` the files a run writes (:data:`RUN_FILES`; in ``sumo/``
-    :data:`RUN_SUMO_FILES`, and the network copy that its ``scenario.resolved.toml`` names, with a
-    baseline's rebuilt networks beside it), and nothing else: where no run has been, ``sumo/`` is
-    left as it is, and ``keep`` (the scenario's own network, where ``out`` is its folder) always
-    stays. ``sumo/`` itself goes once it is empty."""
-    import glob
-    import re
-
+    """Remove from ``out`` what the run recorded in its manifest as created (files, then the folders
+    it created once they are empty), and the manifest; nothing else. Without a manifest (a finished
+    run of an earlier version): the files such a run wrote at the top of ``out``
+    (:data:`RUN_FILES`), never anything in ``sumo/``. ``keep`` (the scenario's own network, where
+    ``out`` is its folder) always stays."""
     out = Path(out)
-    sdir = out / "sumo"
-    names = []
-    if sdir.is_dir() and _was_run_dir(out):
-        names = [sdir / n for n in RUN_SUMO_FILES]
-        try:
-            m = re.search(r'^network = "sumo/([^"/]+)"', (out / "scenario.resolved.toml").read_text(), re.M)
-        except OSError:
-            m = None
-        if m:
-            net = sdir / m.group(1)
-            names += [net, *sdir.glob(f"{glob.escape(net.stem)}.*.net.xml")]  # (runners/baseline.py)
-    for p in [out / n for n in RUN_FILES] + names:
-        if keep is not None and p.exists() and p.resolve() == Path(keep).resolve():
-            continue
-        if p.is_dir() and not p.is_symlink():
-            shutil.rmtree(p, ignore_errors=True)
-        elif p.exists() or p.is_symlink():
-            p.unlink()
     try:
-        sdir.rmdir()  # (only when empty)
-    except OSError:
-        pass
+        created = json.loads((out / MANIFEST).read_text()).get("created", [])
+    except (OSError, ValueError):
+        created = list(RUN_FILES)
+    kept = Path(keep).resolve() if keep is not None else None
+    for rel in sorted(created, key=lambda r: r.count("/"), reverse=True):  # deepest first
+        p = out / rel
+        if kept is not None and p.exists() and p.resolve() == kept:
+            continue
+        if p.is_symlink() or p.is_file():
+            p.unlink()
+        elif p.is_dir():
+            try:
+                p.rmdir()  # (only when empty: what the run did not create in it stays)
+            except OSError:
+                pass
+    for name in (MANIFEST, MANIFEST + ".tmp"):
+        (out / name).unlink(missing_ok=True)
 
 
 def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: float | None, progress: bool,
@@ -151,6 +168,7 @@ def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: 
     try:
         result = engine.run()
     except NetworkError:  # the junction or its zones do not suit: nothing was simulated, nothing is kept
+        update_manifest(out)
         remove_run_files(out, keep=sc.network_path)
         raise
     except RunFailed as exc:
@@ -176,3 +194,4 @@ def _write(result: RunResult, out: Path) -> None:
     if "approaches" in result.extra:
         write_table(out / "approaches.csv", result.extra["approaches"])
     write_summary(out / "summary.json", result.summary)
+    update_manifest(out)

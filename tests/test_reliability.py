@@ -184,10 +184,12 @@ def test_out_holding_another_run_is_refused_unless_forced(tmp_path, capsys):
     assert main(base + ["--duration", "4"]) == 0  # a finished run of the same configuration: run again
     assert main(base + ["--duration", "5"]) == 2
     assert "not a finished run of this configuration" in capsys.readouterr().err
-    (out / "fcd.xml").write_text("<old/>")  # left by an earlier run that wrote one
-    (out / "notes.txt").write_text("mine")  # not a run file: kept
+    created = set(json.loads((out / "manifest.json").read_text())["created"])
+    assert {"summary.json", "vehicles.csv", "report.html", "sumo", "sumo/routes.rou.xml"} <= created
+    (out / "sumo" / "extra.rou.xml").write_text("<routes/>")  # not the run's: kept, and so is its folder
+    (out / "notes.txt").write_text("mine")
     assert main(base + ["--duration", "5", "--force"]) == 0
-    assert not (out / "fcd.xml").exists() and (out / "notes.txt").read_text() == "mine"
+    assert (out / "notes.txt").read_text() == "mine" and (out / "sumo" / "extra.rou.xml").is_file()
     assert json.loads((out / "summary.json").read_text())["sim_time_s"] == pytest.approx(5.0)
     other = tmp_path / "other"
     other.mkdir()
@@ -196,16 +198,25 @@ def test_out_holding_another_run_is_refused_unless_forced(tmp_path, capsys):
 
 
 def test_force_never_removes_or_overwrites_the_users_own_files(tmp_path, capsys):
-    """``--force`` into a folder of the user's own files, where no run has been: their files in
-    ``sumo/`` stay, through the run and through a forced run after it; where a run would overwrite
-    one of them (a network of the same name as the scenario's), it is refused with exit 2 and the
-    file is untouched."""
+    """A folder of the user's own files (their network in ``sumo/``), where no run has been, has no
+    manifest: ``--force`` refuses it with exit 2 and touches nothing. A run into a folder that holds
+    nothing but a finished run's files and the user's own keeps theirs through every forced run
+    after it, a baseline's too."""
     mine = tmp_path / "mine"
     (mine / "sumo").mkdir(parents=True)
     (mine / "sumo" / "my_network.net.xml").write_text("<net/>")
     (mine / "notes.txt").write_text("mine")
     base = ["run", str(CROSS4), "--out", str(mine), "--no-progress", "--force"]
+    assert main(base + ["--duration", "4"]) == 2
+    assert "manifest.json" in capsys.readouterr().err
+    assert sorted(p.relative_to(mine).as_posix() for p in mine.rglob("*")) == ["notes.txt", "sumo",
+                                                                             "sumo/my_network.net.xml"]
+    (mine / "notes.txt").unlink()  # an empty folder but for the user's network: the run may go in
+    (mine / "sumo" / "my_network.net.xml").rename(tmp_path / "n.xml")
+    (mine / "sumo").rmdir()
     assert main(base + ["--duration", "4"]) == 0
+    (tmp_path / "n.xml").rename(mine / "sumo" / "my_network.net.xml")
+    (mine / "notes.txt").write_text("mine")
     assert main(base + ["--duration", "5"]) == 0  # replaces the run's files, and only those
     assert (mine / "sumo" / "my_network.net.xml").read_text() == "<net/>"
     assert (mine / "notes.txt").read_text() == "mine"
@@ -213,14 +224,9 @@ def test_force_never_removes_or_overwrites_the_users_own_files(tmp_path, capsys)
     assert main(["baseline", str(CROSS4), "--junction", "priority", "--out", str(mine), "--duration", "4",
                  "--force"]) == 0
     assert (mine / "sumo" / "my_network.net.xml").read_text() == "<net/>"
-    clash = tmp_path / "clash"
-    (clash / "sumo").mkdir(parents=True)
-    own = clash / "sumo" / "net.net.xml"  # the name of cross4's network copy
-    own.write_text("<my own net/>")
     capsys.readouterr()
-    assert main(["run", str(CROSS4), "--out", str(clash), "--duration", "4", "--no-progress", "--force"]) == 2
-    assert "sumo/net.net.xml" in capsys.readouterr().err
-    assert own.read_text() == "<my own net/>" and not (clash / "summary.json").exists()
+    assert main(base[:-1] + ["--duration", "6"]) == 2  # without --force, as before
+    assert "not a finished run of this configuration" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("edit, message", [
