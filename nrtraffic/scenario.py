@@ -65,6 +65,13 @@ class Sumo:
             raise ScenarioError("sumo.lateral_resolution_m must be >= 0 (0: no sublane model)")
 
 
+# the work a run may take per simulated second, per vehicle: plant steps per SUMO step, and nominal
+# predictor steps per horizon (each plant step runs one prediction)
+MAX_PLANT_STEPS_PER_STEP = 1000
+MAX_PREDICTOR_STEPS = 10000
+MAX_PREDICTOR_STEPS_PER_S = 2_000_000  # plant steps per second x predictor steps per horizon (the paper's Euler: 1.6e6)
+
+
 @dataclass(frozen=True)
 class Controller:
     """``[controller]``: plant integration, predictor and Newton-Raphson flow (paper s. 3.1, 4.1)."""
@@ -86,6 +93,11 @@ class Controller:
         for k in ("plant_step_s", "predictor_step_s", "horizon_s", "alpha", "predictor_mass_factor", "steer_max_rad"):
             if getattr(self, k) <= 0:
                 raise ScenarioError(f"controller.{k} must be > 0")
+        steps = self.horizon_s / self.predictor_step_s
+        if steps > MAX_PREDICTOR_STEPS + 1e-9:
+            raise ScenarioError(f"controller.horizon_s / controller.predictor_step_s = {steps:.0f} predictor steps per "
+                                f"horizon, more than {MAX_PREDICTOR_STEPS}: raise controller.predictor_step_s or "
+                                "shorten controller.horizon_s")
         if self.predictor == "euler" and self.horizon_s < self.predictor_step_s:
             raise ScenarioError("controller.horizon_s must be at least controller.predictor_step_s (Euler predictor)")
         if self.predictor not in self.CHOICES["predictor"]:
@@ -606,6 +618,57 @@ def _coerce(section: str, key: str, typ, value):
     raise ScenarioError(f"{where}: unsupported type")  # pragma: no cover
 
 
+# the physically meaningful range [lo, hi] of every numeric key (inclusive; in the key's unit), checked
+# before a section's own validate(), and given in the JSON Schema as minimum and maximum. Bounds on
+# the work per simulated second (steps per step) are checked in Controller.validate and check_work.
+_DAY_S = 86400.0
+RANGES: dict[str, dict[str, tuple[float, float]]] = {
+    "scenario": {"seed": (0, 2**31 - 1), "duration_s": (0.0, 7 * _DAY_S)},
+    "sumo": {"step_length_s": (0.001, 1.0), "lateral_resolution_m": (0.0, 5.0)},
+    "controller": {"plant_step_s": (1e-4, 0.1), "predictor_step_s": (1e-4, 1.0), "horizon_s": (1e-3, 20.0),
+                   "alpha": (1e-3, 1e5), "damping": (0.0, 1.0), "predictor_mass_factor": (0.1, 10.0),
+                   "a_min_mps2": (-15.0, 0.0), "a_max_mps2": (0.0, 10.0), "steer_max_rad": (0.0, 1.2)},
+    "zones": {"control_zone_m": (0.0, 5000.0), "merging_zone_m": (0.0, 500.0)},
+    "planning": {"v_min_mps": (0.0, 70.0), "v_max_mps": (0.0, 70.0), "u_min_mps2": (-15.0, 0.0),
+                 "u_max_mps2": (0.0, 10.0), "max_lateral_accel_mps2": (0.0, 15.0)},
+    "coordinator": {"rear_end_spacing_m": (0.0, 200.0), "min_merge_headway_s": (0.0, 60.0),
+                    "conflict_margin_s": (0.0, 60.0), "batch_window_s": (0.0, 600.0), "max_passed": (0, 1000),
+                    "max_wait_s": (0.0, _DAY_S)},
+    "demand": {"entry_speed_mps": (0.0, 70.0), "mean_headway_s": (0.0, _DAY_S), "rate_veh_h": (0.0, 20000.0),
+               "turn_left": (0.0, 1.0), "turn_right": (0.0, 1.0), "min_headway_s": (0.0, 3600.0),
+               "max_vehicles": (0, 10_000_000), "begin_s": (0.0, 366 * _DAY_S), "end_s": (0.0, 366 * _DAY_S),
+               "controlled_share": (0.0, 1.0)},
+    "demand.flows": {k: (0.0, 20000.0) for k in ("left", "straight", "right", "u_turn")},
+    "demand.intervals": {"begin_s": (0.0, 366 * _DAY_S), "end_s": (0.0, 366 * _DAY_S), "scale": (0.0, 100.0)},
+    "human": {"accel_mps2": (0.1, 10.0), "decel_mps2": (0.1, 15.0), "sigma": (0.0, 1.0), "tau_s": (0.01, 10.0),
+              "min_gap_m": (0.0, 20.0), "speed_dev": (0.0, 1.0)},
+    "junction": {"lateral_clearance_m": (0.0, 5.0)},
+    "junctions": {"control_zone_m": (0.0, 5000.0), "merging_zone_m": (0.0, 500.0)},
+    "barriers": {"min_gap_m": (0.0, 50.0), "max_braking_mps2": (0.1, 15.0), "longitudinal_gain": (1e-3, 1e3),
+                 "root_smoothing_mps": (0.0, 10.0), "max_lateral_dev_m": (0.01, 5.0),
+                 "max_lateral_accel_mps2": (0.1, 15.0), "lateral_gamma": (1e-3, 1e4), "bisection_tol_rad": (1e-12, 0.1),
+                 "gap_margin_m": (0.0, 50.0), "lateral_margin_m": (0.0, 5.0)},
+    "disturbances": {"position_noise_m": (0.0, 5.0), "speed_noise_mps": (0.0, 10.0), "heading_noise_rad": (0.0, 0.5),
+                     "actuator_lag_s": (0.0, 2.0), "observer_time_s": (0.0, 10.0),
+                     "longitudinal_accel_mps2": (0.0, 10.0), "lateral_accel_mps2": (0.0, 10.0)},
+    "outputs": {"trajectory_interval_s": (0.0, 3600.0), "warmup_s": (0.0, 366 * _DAY_S),
+                "measure_end_s": (0.0, 366 * _DAY_S), "stall_s": (0.0, 366 * _DAY_S)},
+    "approaches": {"merge_entry_pos_m": (0.0, 1e5)},
+    "vehicles": {"depart_s": (0.0, 366 * _DAY_S), "depart_speed_mps": (0.0, 70.0), "depart_pos_m": (-1.0, 1e5),
+                 "entry_heading_offset_rad": (-math.pi, math.pi)},
+}
+
+
+def _check_ranges(name: str, values: dict) -> None:
+    """Refuse a numeric key given outside its :data:`RANGES` (NaN and infinities too), naming it."""
+    for key, (lo, hi) in RANGES.get(name, {}).items():
+        v = values.get(key)
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            continue
+        if not (lo <= v <= hi):
+            raise ScenarioError(f"{name}.{key} = {v!r} is outside its range [{lo:g}, {hi:g}]: give a value in it")
+
+
 def _section(name: str, cls, table) -> Any:
     if not isinstance(table, dict):
         raise ScenarioError(f"[{name}] must be a table")
@@ -624,6 +687,7 @@ def _section(name: str, cls, table) -> Any:
             if k not in known:
                 raise ScenarioError(f"unknown key {name}.{k}; known keys of [{name}]: {', '.join(sorted(known))}")
             kwargs[k] = _coerce(name, k, hints[k], v)
+    _check_ranges(name, kwargs)
     try:
         obj = cls(**kwargs)
     except (ValueError, TypeError) as exc:
@@ -722,6 +786,23 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
     ratio = sc.sumo.step_length_s / sc.controller.plant_step_s
     if abs(ratio - round(ratio)) > 1e-9:
         raise ScenarioError("sumo.step_length_s must be a whole multiple of controller.plant_step_s")
+    if ratio > MAX_PLANT_STEPS_PER_STEP + 1e-9:
+        raise ScenarioError(f"sumo.step_length_s / controller.plant_step_s = {ratio:.0f} plant steps per SUMO step, "
+                            f"more than {MAX_PLANT_STEPS_PER_STEP}: raise controller.plant_step_s")
+    v_top = max(sc.planning.v_max_mps, 1.0)  # the vehicle type's maxSpeed in SUMO (demand.py)
+    speeds = [("demand.entry_speed_mps", sc.demand.entry_speed_mps)] + [
+        (f"vehicles.{v.id}.depart_speed_mps", v.depart_speed_mps) for v in sc.vehicles]
+    for where, v in speeds:
+        if v > v_top + 1e-9:
+            raise ScenarioError(f"{where} = {v:g} m/s is faster than the vehicles' top speed, planning.v_max_mps = "
+                                f"{sc.planning.v_max_mps:g} m/s (SUMO refuses to insert them): lower it, or raise "
+                                "planning.v_max_mps")
+    c = sc.controller
+    work = c.horizon_s / c.predictor_step_s / c.plant_step_s
+    if work > MAX_PREDICTOR_STEPS_PER_S * (1 + 1e-9):
+        raise ScenarioError(f"controller: {work:.3g} predictor steps per simulated second and vehicle "
+                            f"(horizon_s / predictor_step_s / plant_step_s), more than {MAX_PREDICTOR_STEPS_PER_S:.0e}: "
+                            "raise controller.predictor_step_s or controller.plant_step_s, or shorten horizon_s")
     obs = sc.disturbances.observer_time_s
     if 0 < obs < sc.controller.plant_step_s:
         raise ScenarioError(f"disturbances.observer_time_s ({obs:g} s) must be 0 (no observer) or at least "

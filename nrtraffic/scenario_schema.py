@@ -5,7 +5,8 @@ the keys, types and defaults; their ``CHOICES`` the values a string key takes; t
 field's line (or the ``Attributes`` entry of the class docstring) its description. From them come
 the JSON Schema (``nrtraffic schema``, committed as ``docs/scenario.schema.json``, which TOML editors
 use to check and complete scenario files) and the key reference ``docs/scenario_keys.md``.
-Range checks stay in the sections' ``validate`` methods, whose messages name the key.
+The range of every numeric key (``scenario.RANGES``) is the schema's ``minimum`` and ``maximum``;
+further checks stay in the sections' ``validate`` methods, whose messages name the key.
 """
 
 from __future__ import annotations
@@ -65,15 +66,19 @@ def _json_type(hint) -> dict:
     if origin is tuple:
         args = typing.get_args(hint)
         if args and dataclasses.is_dataclass(args[0]):
-            return {"type": "array", "items": _table(args[0])}
+            return {"type": "array", "items": _table(args[0], name=_NESTED.get(args[0]))}
         return {"type": "array", "items": {"type": "string"}} if args and args[0] is str else {"type": "array"}
     if hint is tuple:
         return {"type": "array"}
     return {}
 
 
-def _table(cls, skip=()) -> dict:
+_NESTED = {S.DemandFlow: "demand.flows", S.DemandInterval: "demand.intervals"}
+
+
+def _table(cls, skip=(), name: str | None = None) -> dict:
     hints = typing.get_type_hints(cls)
+    ranges = S.RANGES.get(name, {})
     docs = _field_docs(cls)
     choices = getattr(cls, "CHOICES", {})
     props = {}
@@ -85,6 +90,8 @@ def _table(cls, skip=()) -> dict:
             prop["default"] = f.default
         if f.name in choices:
             prop["enum"] = list(choices[f.name])
+        if f.name in ranges:
+            prop["minimum"], prop["maximum"] = ranges[f.name]
         if docs.get(f.name):
             prop["description"] = docs[f.name]
         props[f.name] = prop
@@ -106,10 +113,10 @@ def json_schema() -> dict:
             params["description"] = "a parameter preset and overrides of its fields"
             sections[name] = params
         else:
-            sections[name] = _table(cls)
-    sections["approaches"] = {"type": "array", "items": _table(S.Approach)}
-    sections["vehicles"] = {"type": "array", "items": _table(S.ListedVehicle)}
-    sections["junctions"] = {"type": "array", "items": _table(S.JunctionSpec)}
+            sections[name] = _table(cls, name=name)
+    sections["approaches"] = {"type": "array", "items": _table(S.Approach, name="approaches")}
+    sections["vehicles"] = {"type": "array", "items": _table(S.ListedVehicle, name="vehicles")}
+    sections["junctions"] = {"type": "array", "items": _table(S.JunctionSpec, name="junctions")}
     return {
         "$schema": "https://json-schema.org/draft/2020-12/schema",
         "$id": SCHEMA_ID,
@@ -125,6 +132,10 @@ def schema_text() -> str:
     return json.dumps(json_schema(), indent=1, default=str) + "\n"
 
 
+def _range(p: dict) -> str:
+    return f"{p['minimum']:g} to {p['maximum']:g}" if "minimum" in p else ""
+
+
 def markdown_reference() -> str:
     """Every section and key of the format, with its type, default and meaning."""
     schema = json_schema()
@@ -135,7 +146,7 @@ def markdown_reference() -> str:
         array = sec.get("type") == "array"
         table = sec["items"] if array else sec
         out += [f"## `[[{name}]]`" if array else f"## `[{name}]`", "", table.get("description", ""), "",
-                "| key | type | default | meaning |", "|---|---|---|---|"]
+                "| key | type | default | range | meaning |", "|---|---|---|---|---|"]
         for key, p in table["properties"].items():
             typ = p.get("type", "")
             if "enum" in p:
@@ -143,15 +154,16 @@ def markdown_reference() -> str:
             default = json.dumps(p["default"], default=str) if "default" in p else ""
             if typ == "array" and "properties" in p.get("items", {}):
                 typ = f"array of tables (`[[{name}.{key}]]`, below)"
-            out.append(f"| `{key}` | {typ} | {default} | {p.get('description', '').replace('|', '/')} |")
+            out.append(f"| `{key}` | {typ} | {default} | {_range(p)} | {p.get('description', '').replace('|', '/')} |")
         out.append("")
         for key, p in table["properties"].items():
             sub = p.get("items", {})
             if p.get("type") == "array" and "properties" in sub:
                 out += [f"### `[[{name}.{key}]]`", "", sub.get("description", ""), "",
-                        "| key | type | default | meaning |", "|---|---|---|---|"]
+                        "| key | type | default | range | meaning |", "|---|---|---|---|---|"]
                 for k, q in sub["properties"].items():
                     default = json.dumps(q["default"], default=str) if "default" in q else ""
-                    out.append(f"| `{k}` | {q.get('type', '')} | {default} | {q.get('description', '').replace('|', '/')} |")
+                    out.append(f"| `{k}` | {q.get('type', '')} | {default} | {_range(q)} | "
+                               f"{q.get('description', '').replace('|', '/')} |")
                 out.append("")
     return "\n".join(out)

@@ -32,7 +32,7 @@ def test_wrong_type_and_range_are_named(tmp_path, paper_curved_path):
     with pytest.raises(ScenarioError, match=r"controller\.alpha must be a number"):
         scenario.load(f)
     f = _write(tmp_path, paper_curved_path, lambda s: s.replace("horizon_s = 0.2", "horizon_s = -1.0"))
-    with pytest.raises(ScenarioError, match=r"controller\.horizon_s must be > 0"):
+    with pytest.raises(ScenarioError, match=r"controller\.horizon_s = -1.0 is outside its range"):
         scenario.load(f)
 
 

@@ -1,0 +1,61 @@
+"""Every numeric scenario key is refused outside its physical range, and what is accepted runs in
+bounded work: extreme values drawn for every key either stop the run before SUMO starts with exit 2
+and a message naming the key, or a 10 s run finishes (no hang, no traceback)."""
+
+import math
+import subprocess
+import sys
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from conftest import ROOT, SCENARIOS
+from nrtraffic import scenario as S
+
+PAPER = SCENARIOS / "paper_curved" / "scenario.toml"
+# sections that are arrays of tables (no --set for them)
+_ARRAYS = {"demand.flows", "demand.intervals", "approaches", "vehicles", "junctions"}
+KEYS = [(sec, k) for sec, keys in S.RANGES.items() if sec not in _ARRAYS for k in keys]
+EXTREMES = (-1e9, -1.0, 0.0, 1e-9, 1e-4, 1.0, 1e4, 1e9, math.inf, -math.inf, math.nan)
+
+
+def _toml(v: float, integer: bool) -> str:
+    if math.isnan(v):
+        return "nan"
+    if math.isinf(v):
+        return "inf" if v > 0 else "-inf"
+    return str(int(v)) if integer and float(v).is_integer() else repr(float(v))
+
+
+@pytest.mark.parametrize("sec, key", KEYS, ids=[f"{s}.{k}" for s, k in KEYS])
+def test_values_outside_the_range_are_refused_naming_the_key(sec, key):
+    lo, hi = S.RANGES[sec][key]
+    integer = isinstance(lo, int) and isinstance(hi, int)
+    for v in (lo - (1 if integer else max(abs(lo), 1.0) * 1e-3), hi + (1 if integer else max(abs(hi), 1.0) * 1e-3),
+              math.nan):
+        if integer and math.isnan(v):
+            continue
+        with pytest.raises(S.ScenarioError, match=rf"{sec}\.{key}"):
+            S.load(PAPER, [f"{sec}.{key}={_toml(v, integer)}"])
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(key=st.sampled_from(KEYS), value=st.one_of(st.sampled_from(EXTREMES),
+                                                  st.sampled_from([b for keys in S.RANGES.values() for r in keys.values()
+                                                                   for b in r])))
+def test_extreme_values_are_refused_or_run_in_bounded_work(key, value, tmp_path_factory):
+    sec, k = key
+    lo, hi = S.RANGES[sec][k]
+    integer = isinstance(lo, int) and isinstance(hi, int)
+    out = tmp_path_factory.mktemp("run") / "o"
+    cmd = [sys.executable, "-m", "runners.cli", "run", str(PAPER), "--duration", "10", "--set",
+           f"{sec}.{k}={_toml(value, integer)}", "--out", str(out), "--no-progress"]
+    try:
+        proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"{sec}.{k} = {value!r}: a 10 s run did not end within 300 s")
+    assert "Traceback" not in proc.stderr, proc.stderr
+    assert proc.returncode in (0, 2), (proc.returncode, proc.stderr[-500:])
+    if proc.returncode == 2:
+        assert sec in proc.stderr and not (out / "summary.json").exists()
