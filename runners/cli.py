@@ -187,8 +187,12 @@ def writable_dir(path: Path) -> None:
 
 
 def _claim(out: Path, sc, seed, duration, control: str, force: bool) -> None:
-    from runners.single import claim_run_dir
+    """Check the scenario against its network and build its demand (exit 2 on an error, before
+    anything is written), then make ``out`` ready for the run."""
+    from runners.single import check, check_demand, claim_run_dir
 
+    check(sc)
+    check_demand(sc, seed, duration)
     writable_dir(out)
     try:
         claim_run_dir(out, sc, seed, duration, control, force)

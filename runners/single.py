@@ -21,6 +21,27 @@ def check(sc: scenario_mod.Scenario) -> None:
     check_sumo_args(tuple(sc.sumo.extra_args))
 
 
+def check_demand(sc: scenario_mod.Scenario, seed: int | None, duration_s: float | None) -> int:
+    """Build the run's whole demand as the run will (counts, intervals, route files,
+    ``[[vehicles]]``, corridor flows) from the network file, SUMO not started; any error in it is a
+    :class:`~nrtraffic.scenario.ScenarioError` (exit 2) naming what is wrong, not a failure once
+    SUMO runs. Returns the number of departures."""
+    import xml.etree.ElementTree as ET
+
+    from nrtraffic.demand import Demand
+
+    try:
+        return len(Demand.of(sc, seed, duration_s).departures())
+    except scenario_mod.ScenarioError:
+        raise
+    except NetworkError:
+        raise
+    except ET.ParseError as exc:
+        raise scenario_mod.ScenarioError(f"demand: a route file is not valid XML: {exc}") from None
+    except (ValueError, KeyError, ZeroDivisionError, OverflowError) as exc:
+        raise scenario_mod.ScenarioError(f"demand: {exc}") from None
+
+
 def prepare_run_dir(sc: scenario_mod.Scenario, out: Path) -> Path:
     """Check the scenario against its network (:func:`check`), then create ``out`` with the SUMO
     network copied in."""

@@ -108,6 +108,9 @@ def parse_seeds(text: str) -> list[int]:
         raise SweepError(f"--seeds {text!r}: expected A:B or a comma list of integers") from None
     if not seeds:
         raise SweepError(f"--seeds {text!r} selects no seed")
+    bad = [x for x in seeds if not 0 <= x <= 2**31 - 1]
+    if bad:
+        raise SweepError(f"--seeds {text!r}: seeds are 0 to 2^31 - 1, got {bad[0]}")
     return seeds
 
 
@@ -143,10 +146,11 @@ def point_name(point: tuple[tuple[str, str], ...]) -> str:
 
 def plan(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]]], controls: list[str], out: Path,
          duration_s: float | None = None, overrides: tuple[str, ...] = (), allow_outside: bool = False) -> list[Job]:
-    """Every job of the sweep. Each grid point's configuration is loaded here first, so a bad key
-    or value stops the sweep before any run starts, with the scenario loader's message."""
+    """Every job of the sweep. Each grid point's configuration is loaded, and its demand built, here
+    first, so a bad key, value or demand stops the sweep before any run starts, with the scenario
+    loader's message."""
     from nrtraffic import scenario
-    from runners.single import check
+    from runners.single import check, check_demand
 
     keys = [k for k, _ in grid]
     jobs = []
@@ -155,6 +159,7 @@ def plan(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]]
         ov = tuple(overrides) + tuple(f"{k}={v}" for k, v in point)
         sc = scenario.load(scenario_path, list(ov), allow_outside=allow_outside)
         check(sc)
+        check_demand(sc, seeds[0], duration_s)  # (the demand's errors do not depend on the seed)
         if any(c != NRTRAFFIC for c in controls) and not sc.controlled_junctions():
             raise SweepError("--baseline needs a scenario with a [junction]")
         config = sc.to_dict()

@@ -270,3 +270,75 @@ def test_an_interrupt_inside_compiled_code_is_reported_as_the_interrupt():
         got = _interrupt_in(exc)
     assert isinstance(got, Terminated) and "SIGTERM" in str(got)
     assert _interrupt_in(ValueError("no interrupt here")) is None
+
+
+_ROUTE_CASES = {
+    "zero_rate": ('<flow id="x" from="W_in" to="E_out" begin="0" end="100" vehsPerHour="0"/>', "vehsPerHour must be > 0"),
+    "no_vehicles": ('<route id="r" edges="W_in E_out"/>', "holds no <vehicle>, <trip> or <flow>"),
+    "malformed": ('<flow id="x" from="W_in"', "cannot be read as XML"),
+    "unknown_edges": ('<trip id="x" depart="1" from="W_in" to="Nowhere_out"/>', "uses no movement of the junction"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(_ROUTE_CASES))
+def test_a_bad_route_file_is_refused_before_sumo_starts(case, tmp_path, capsys):
+    """A route file's errors are found when the demand is built before SUMO starts: exit 2 naming
+    the element, and nothing is written (the run exited 1 after SUMO had started, or, for a flow of
+    0 veh/h, with a ZeroDivisionError)."""
+    body, message = _ROUTE_CASES[case]
+    d = tmp_path / "tee3"
+    d.mkdir()
+    for f in (SCENARIOS / "tee3").iterdir():
+        if f.is_file():
+            (d / f.name).write_bytes(f.read_bytes())
+    (d / "flows.rou.xml").write_text(f"<routes>\n{body}\n</routes>\n")
+    out = tmp_path / "o"
+    assert main(["run", str(d / "routes.toml"), "--out", str(out), "--duration", "20", "--no-progress"]) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("old, new, flags, message", [
+    ('approach = "E_in"', 'approach = "Q_in"', [], "Q_in is not an approach of the junction"),
+    ("straight = 100.0", "straight = 100.0\nu_turn = 10.0", [], "u_turn"),
+    ("", "", ["--duration", "0", "--set", "scenario.duration_s=0", "--set", "demand.rate_veh_h=100"],
+     "random demand needs"),
+])
+def test_a_bad_demand_is_refused_before_sumo_starts(old, new, flags, message, tmp_path, capsys):
+    """Counts for an approach the junction lacks, a U-turn count where it has none, open-ended random
+    demand for a run without an end: exit 2 before anything is written (these exited 1 once SUMO
+    had started)."""
+    d = tmp_path / "cross4"
+    d.mkdir()
+    for f in (SCENARIOS / "cross4").iterdir():
+        if f.is_file():
+            (d / f.name).write_bytes(f.read_bytes())
+    counts = d / "counts.toml"
+    if old:
+        text = counts.read_text()
+        assert old in text
+        counts.write_text(text.replace(old, new, 1))
+    out = tmp_path / "o"
+    args = ["run", str(counts), "--out", str(out), "--no-progress"] + (flags or ["--duration", "20"])
+    if flags:  # (the random-demand scenario: cross4 itself)
+        args[1] = str(d / "scenario.toml")
+    assert main(args) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_sweep_flags_and_demand_are_checked_before_any_worker_starts(tmp_path, capsys):
+    """Seeds outside 0..2^31-1 and a demand that cannot be built stop a sweep with exit 2 before any
+    run starts, naming the flag or the key (a negative seed failed inside a Dask worker)."""
+    assert main(["sweep", str(CROSS4), "--seeds=-1:0", "--out", str(tmp_path / "a"), "--no-progress"]) == 2
+    assert "seeds are 0 to 2^31 - 1" in capsys.readouterr().err
+    d = tmp_path / "cross4"
+    d.mkdir()
+    for f in (SCENARIOS / "cross4").iterdir():
+        if f.is_file():
+            (d / f.name).write_bytes(f.read_bytes())
+    counts = d / "counts.toml"
+    counts.write_text(counts.read_text().replace('approach = "E_in"', 'approach = "Q_in"', 1))
+    assert main(["sweep", str(counts), "--seeds", "1:2", "--out", str(tmp_path / "b"), "--no-progress"]) == 2
+    assert "Q_in is not an approach" in capsys.readouterr().err
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()

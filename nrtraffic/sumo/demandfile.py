@@ -77,6 +77,9 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
             return entry_speed_mps
         return _num(el, "departSpeed", where)
 
+    if not any(el.tag in ("vehicle", "trip", "flow") for el in root):
+        raise DemandFileError(f"demand.sumo_routes {path}: holds no <vehicle>, <trip> or <flow> (a SUMO route file "
+                              "is expected)")
     out = []
     for el in root:
         tag = el.tag
@@ -111,8 +114,14 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
                     break
                 times.append(t)
         elif el.get("period") is not None or el.get("vehsPerHour") is not None:
-            period = _num(el, "period", where) if el.get("period") is not None else 3600.0 / _num(el, "vehsPerHour", where)
-            if period <= 0:
+            if el.get("period") is not None:
+                period = _num(el, "period", where)
+            else:
+                vph = _num(el, "vehsPerHour", where)
+                if not vph > 0:
+                    raise DemandFileError(f"{where}: vehsPerHour must be > 0 (leave the flow out for none)")
+                period = 3600.0 / vph
+            if not period > 0:
                 raise DemandFileError(f"{where}: the period must be > 0")
             times = list(np.arange(begin, end, period)) if math.isfinite(end) else []
         elif el.get("probability") is not None:
