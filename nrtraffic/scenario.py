@@ -631,7 +631,7 @@ RANGES: dict[str, dict[str, tuple[float, float]]] = {
     "zones": {"control_zone_m": (0.0, 5000.0), "merging_zone_m": (0.0, 500.0)},
     "planning": {"v_min_mps": (0.0, 70.0), "v_max_mps": (0.0, 70.0), "u_min_mps2": (-15.0, 0.0),
                  "u_max_mps2": (0.0, 10.0), "max_lateral_accel_mps2": (0.0, 15.0)},
-    "coordinator": {"rear_end_spacing_m": (0.0, 200.0), "min_merge_headway_s": (0.0, 60.0),
+    "coordinator": {"rear_end_spacing_m": (0.0, 200.0), "min_merge_headway_s": (0.0, 3600.0),
                     "conflict_margin_s": (0.0, 60.0), "batch_window_s": (0.0, 600.0), "max_passed": (0, 1000),
                     "max_wait_s": (0.0, _DAY_S)},
     "demand": {"entry_speed_mps": (0.0, 70.0), "mean_headway_s": (0.0, _DAY_S), "rate_veh_h": (0.0, 20000.0),

@@ -220,3 +220,33 @@ def test_a_car_close_behind_a_standing_queue_whose_start_is_far_off_is_held_or_k
         return
     t = np.linspace(t0, got.t_merge, 4001)
     assert (lead.evaluate(t)[0] + (D - 335.3) - got.profile.evaluate(t)[0]).min() > 0.5
+
+
+def test_a_start_from_rest_behind_a_crawling_plan_never_runs_into_it():
+    """A car that entered nearly standing (0.05 m/s) 200 m before the zone, planned to its merge time
+    behind cross traffic that holds the conflict area for 40 s, and a car standing 7.5 m behind it
+    whose start from rest is reserved (2.5 m/s^2 up to a turn's 6.5 m/s). The start that only
+    spaces the merge times sets off while the car ahead still crawls, and runs into its plan (by
+    tens of metres). The reserved start keeps the standing spacing less half a metre (7 m, below
+    delta) behind the plan ahead everywhere, checked on the two profiles (from_rest: closed form)."""
+    from nrtraffic.planning.crossing import CrossingBounds, human_crossing
+    from nrtraffic.planning.profiles import from_rest
+
+    bounds = PlanBounds(v_min_mps=1.0, v_max_mps=13.89, u_min_mps2=-3.0, u_max_mps2=2.5)
+    c = Coordinator(CoordinatorSettings(rear_end_spacing_m=12.0, min_merge_headway_s=1.0, terminal_speed="fixed",
+                                        conflict_model="conflict_points", policy="batch"), bounds)
+    c.areas = {("a", "b"): (0.0, 5.0), ("b", "a"): (0.0, 5.0)}
+    c.reserve_crossing("cross", "M", "b", 0.0, {"a": (0.0, 40.0)}, (0.0, 0.0), (40.0, 40.0), 13.89)
+    lead = c.schedule_request(Request("crawl", "L", 0.0, 0.05, 200.0, "a", 30.0, 13.89, hindered=True))
+    D = 207.5
+    b = CrossingBounds(2.5, 2.5, 6.5, 6.5, 0.0)
+    offsets, mw, ew, v_exit = human_crossing(b, {}, D, D + 30.0)
+    got = c.reserve_crossing("stand", "L", "a", 0.0, offsets, mw, ew, v_exit, start=(D, 2.5, 6.5))
+
+    def spacing(t_start):
+        t = np.linspace(t_start, lead.t_merge, 4001)
+        return ((D - from_rest(t_start, D, 2.5, 6.5).evaluate(t)[0]) - (200.0 - lead.profile.evaluate(t)[0])).min()
+
+    assert spacing(got.t_release) >= 7.0 - 0.05
+    naive = max(lead.t_merge + 1.0 - mw[0], lead.t_exit + 12.0 / max(v_exit, 1.0) - ew[0], 0.0)
+    assert spacing(naive) < -10.0  # (spacing the merge times alone: it would run into it)

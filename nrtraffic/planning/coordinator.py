@@ -49,6 +49,7 @@ from typing import ClassVar
 import numpy as np
 
 from nrtraffic.planning.conflicts import CONFLICT
+from nrtraffic.planning.crossing import travel_time
 from nrtraffic.planning.profiles import (InfeasibleProfile, PlanBounds, Profile, earliest_fixed, fixed_terminal,
                                          free_terminal, max_time, min_time, rear_end_constrained, rear_end_violation,
                                          standing_start)
@@ -454,6 +455,8 @@ class Coordinator:
                          prev.t_exit + spacing_t - exit_window[0])
             if not math.isnan(prev.t_release):  # it also starts from rest: not before it sets off
                 t_same = max(t_same, prev.t_release + self.settings.min_merge_headway_s)
+            if start is not None:  # and not before its start from rest would run into the plan ahead
+                t_same = max(t_same, self._start_behind(prev, t0, *start))
             pred, relation = prev.vehicle_id, "same_lane"
             if t_same > t_start:
                 t_start, binding = t_same, "rear_end"
@@ -467,6 +470,29 @@ class Coordinator:
         self._last_on_lane[lane] = a
         self._reserved = [x for x in self._reserved if x.t_exit + self.settings.conflict_margin_s > t0] + [a]
         return a
+
+    def _start_behind(self, prev: Assignment, t0: float, D: float, a: float, v_cap: float) -> float:
+        """The earliest start [s] of a car standing ``D`` [m] before its merging zone, from rest at
+        ``a`` [m/s^2] up to ``v_cap`` [m/s], that keeps behind the plan of the car ahead of it on
+        its lane (its profile, or its own slowest start from rest): a start at ``t`` covers
+        ``f(tau - t)`` by ``tau``, which must stay within the leader's position less the gap,
+        ``x(tau)``; with ``T(x)`` the time to cover ``x`` from rest (:func:`~nrtraffic.planning.
+        crossing.travel_time`; 0 for ``x <= 0``), ``t >= max_tau (tau - T(x(tau)))``. The gap is
+        ``delta``, or the spacing it stands at less half a metre where that is less (a standing
+        queue). ``t0`` where the car ahead has no plan (a human's crossing: the barrier keeps the
+        gap)."""
+        lead = prev.motion if prev.motion is not None else prev.profile
+        if not isinstance(lead, Profile):
+            return t0
+        t_end = max(prev.t_exit, lead.t0 + lead.T) + travel_time(D, a, v_cap)
+        grid = np.linspace(t0, t_end, max(2, int(math.ceil((t_end - t0) / 0.1)) + 1))
+        spacing = D - lead.D + lead.evaluate(grid)[0]  # centre to centre if this car stood still [m]
+        gap = min(self.settings.rear_end_spacing_m, max(float(spacing.min()) - 0.5, 0.5))
+        x = spacing - gap  # what it may have covered by each instant [m]
+        d_acc = v_cap * v_cap / (2.0 * a)
+        T = np.where(x <= 0.0, 0.0, np.where(x <= d_acc, np.sqrt(2.0 * np.maximum(x, 0.0) / a),
+                                             v_cap / a + (x - d_acc) / v_cap))
+        return max(t0, float(np.max(grid - T)))
 
     def _keep_behind(self, prof: Profile, prev: Assignment, t0: float, v0: float, D: float,
                      t_m: float, strict: bool = False) -> tuple[Profile, float]:
