@@ -704,7 +704,10 @@ def parse_override(text: str) -> tuple[str, str, Any]:
     lhs, rhs = text.split("=", 1)
     section, key = lhs.strip().split(".", 1)
     try:
-        value = tomllib.loads(f"v = {rhs.strip()}")["v"]
+        try:
+            value = tomllib.loads(f"v = {rhs.strip()}")["v"]
+        except RecursionError:
+            raise ScenarioError(f"--set {text!r}: the value is nested too deeply") from None
     except tomllib.TOMLDecodeError:
         value = rhs.strip()
     return section, key, value
@@ -835,10 +838,15 @@ def load(path: str | Path, overrides: list[str] | tuple[str, ...] = (), allow_ou
         raise ScenarioError(f"{path}: cannot be read: {exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
+    except RecursionError:
+        raise ScenarioError(f"{path}: arrays or inline tables nested too deeply to read") from None
     try:
         return from_dict(data, path.parent, overrides, allow_outside=allow_outside)
     except ScenarioError as exc:
         raise ScenarioError(f"{path}: {exc}") from None
+    except RecursionError:
+        raise ScenarioError(f"{path}: a value nested too deeply (a scenario's values are numbers, strings and "
+                            "flat lists)") from None
 
 
 def dumps(sc: Scenario, network: str | None = None) -> str:

@@ -169,6 +169,13 @@ def _scenario_copy(tmp_path, old=None, new=None, extra=""):
     ("trajectory_interval_s = 0.5", "trajectory_interval_s = 0.25", "", "whole multiple of sumo.step_length_s"),
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--no-such-option", "1"]', "",
      "no option --no-such-option"),
+    # SUMO options that write files (they landed outside --out, relative to the working folder)
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--output-prefix", "../../"]', "",
+     "--output-prefix would write files outside the run folder"),
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--summary-output", "s.xml"]', "",
+     "--summary-output would write files outside the run folder"),
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--error-log", "e.txt"]', "",
+     "--error-log would write files outside the run folder"),
 ])
 def test_scenarios_that_would_run_wrong_exit_2_naming_the_problem(old, new, extra, message, tmp_path, capsys):
     d = _scenario_copy(tmp_path, old or None, new or None, extra)
@@ -342,3 +349,15 @@ def test_sweep_flags_and_demand_are_checked_before_any_worker_starts(tmp_path, c
     assert main(["sweep", str(counts), "--seeds", "1:2", "--out", str(tmp_path / "b"), "--no-progress"]) == 2
     assert "Q_in is not an approach" in capsys.readouterr().err
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+@pytest.mark.parametrize("value", ["[" * 3000 + "]" * 3000, "{a = " * 3000 + "1" + "}" * 3000])
+def test_deeply_nested_toml_is_refused_with_exit_2(value, tmp_path, capsys):
+    """Arrays or inline tables nested thousands deep (an uncaught RecursionError): exit 2, in the
+    file and in --set."""
+    d = _scenario_copy(tmp_path, None, None, f"\n[extra]\nnested = {value}\n")
+    assert main(["run", str(d), "--out", str(tmp_path / "o"), "--duration", "5", "--no-progress"]) == 2
+    assert "nested too deeply" in capsys.readouterr().err
+    assert main(["run", str(CROSS4), "--out", str(tmp_path / "o"), "--duration", "5", "--no-progress",
+                 "--set", f"outputs.warmup_s={value}"]) == 2
+    assert "nested too deeply" in capsys.readouterr().err

@@ -185,15 +185,52 @@ def sumo_options() -> set[str]:
     return _SUMO_OPTIONS
 
 
+_SUMO_WRITING: set[str] = set()
+
+
+def sumo_writing_options() -> set[str]:
+    """Names of SUMO's options that write a file (of type FILE in its output and report sections,
+    ``output-prefix``, and saving its configuration), from ``sumo --save-template --save-commented``."""
+    if not _SUMO_WRITING:
+        import re
+        import subprocess
+
+        import sumo
+
+        exe = Path(sumo.SUMO_HOME) / "bin" / "sumo"
+        text = subprocess.run([str(exe), "--save-template", "stdout", "--save-commented"], capture_output=True,
+                              text=True, check=True).stdout
+        section = None
+        for line in text.splitlines():
+            m = re.match(r"\s{4}<([\w.-]+)>\s*$", line)
+            if m:
+                section = m.group(1)
+                continue
+            m = re.match(r'\s{8}<([\w.-]+) value=.*type="([^"]+)"', line)
+            if m and section in ("output", "report") and m.group(2).startswith("FILE") \
+                    and not m.group(1).endswith("input-file"):
+                _SUMO_WRITING.add(m.group(1))
+        _SUMO_WRITING.update({"output-prefix", "save-configuration", "save-template", "save-schema"})
+    return _SUMO_WRITING
+
+
 def check_sumo_args(args: tuple[str, ...]) -> None:
-    """Every ``--name`` in ``args`` (``sumo.extra_args``) must be one of SUMO's options."""
+    """Every ``--name`` in ``args`` (``sumo.extra_args``) must be one of SUMO's options, and none
+    may write a file: it would land outside the run folder (relative to where nrtraffic was
+    started), beside nothing that names the run; the run writes SUMO's outputs it uses itself
+    (``outputs.sumo_fcd`` for fcd.xml)."""
     bad = [a for a in args if a.startswith("--")]
     if not bad:
         return
     known = sumo_options()
-    bad = [a for a in bad if a[2:].split("=")[0] not in known]
-    if bad:
-        raise NetworkError(f"sumo.extra_args: SUMO has no option {', '.join(bad)}")
+    names = [a[2:].split("=")[0] for a in bad]
+    unknown = [a for a, n in zip(bad, names) if n not in known]
+    if unknown:
+        raise NetworkError(f"sumo.extra_args: SUMO has no option {', '.join(unknown)}")
+    writing = [a for a, n in zip(bad, names) if n in sumo_writing_options()]
+    if writing:
+        raise NetworkError(f"sumo.extra_args: {', '.join(writing)} would write files outside the run folder; "
+                           "leave it out (outputs.sumo_fcd = true writes fcd.xml into the run)")
 
 
 def edge_lanes(net_path: Path, edges) -> list[tuple[str, str, float]]:
