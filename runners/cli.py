@@ -152,7 +152,9 @@ def _add_replay(sub) -> None:
     p.add_argument("--atol", type=_tolerance, default=ATOL, help=f"absolute tolerance, in each figure's unit "
                    f"(default {ATOL:g})")
     p.add_argument("--out", type=Path, default=None, metavar="DIR",
-                   help="keep the replay in DIR (default: a temporary folder, removed)")
+                   help="keep the replay in DIR (default: a temporary folder, removed); never the run itself")
+    p.add_argument("--force", action="store_true",
+                   help="replace an earlier run's files in --out when it holds one")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 

@@ -161,10 +161,13 @@ def _read_recorded(run_dir: Path) -> dict:
 
 
 def replay(run_dir: Path, out: Path | None = None, rtol: float = RTOL, atol: float = ATOL,
-           progress: bool = False) -> tuple[list[Difference], Path | None]:
+           progress: bool = False, force: bool = False) -> tuple[list[Difference], Path | None]:
     """Re-run ``run_dir`` from its recorded configuration (into ``out``, or a temporary folder that
     is removed afterwards) and compare. Returns the differences and the replay's folder (None when
-    it was temporary)."""
+    it was temporary). ``out`` may be neither the recorded run, nor inside it, nor hold it (the
+    replay would overwrite what it verifies: ReplayError); one that is not empty is refused unless
+    ``force``, which replaces an earlier run in it as ``run --force`` does
+    (:func:`~runners.single.claim_run_dir`)."""
     from nrtraffic import scenario
     from nrtraffic.engine import RunFailed
     from runners.baseline import run_baseline
@@ -177,6 +180,19 @@ def replay(run_dir: Path, out: Path | None = None, rtol: float = RTOL, atol: flo
     recorded = _read_recorded(run_dir)
     sc = scenario.load(run_dir / "scenario.resolved.toml")
     tmp = None
+    if out is not None:
+        from runners.single import claim_run_dir
+
+        a, b = Path(out).resolve(), run_dir.resolve()
+        if a == b or a.is_relative_to(b) or b.is_relative_to(a):
+            raise ReplayError(f"--out {out} would overwrite the run it verifies ({run_dir}): give another folder")
+        if Path(out).is_dir() and any(Path(out).iterdir()) and not force:
+            raise ReplayError(f"--out {out} is not empty: choose another folder, or --force to replace the run in it")
+        control = f"sumo_{recorded['junction_type']}" if recorded.get("junction_type") else "nrtraffic"
+        try:
+            claim_run_dir(Path(out), sc, None, None, control, force)
+        except ValueError as exc:
+            raise ReplayError(str(exc)) from None
     if out is None:
         tmp = Path(tempfile.mkdtemp(prefix="nrtraffic-replay-"))
         out = tmp / "run"
@@ -197,7 +213,8 @@ def replay(run_dir: Path, out: Path | None = None, rtol: float = RTOL, atol: flo
 
 
 def main(args) -> int:
-    diffs, kept = replay(args.run_dir, args.out, args.rtol, args.atol, progress=not args.no_progress)
+    diffs, kept = replay(args.run_dir, args.out, args.rtol, args.atol, progress=not args.no_progress,
+                         force=args.force)
     if not diffs:
         print(f"replay of {args.run_dir}: matches (rtol {args.rtol:g}, atol {args.atol:g})")
         return 0

@@ -91,3 +91,28 @@ def test_a_run_recorded_with_the_host_cpu_target_replays_on_the_generic_one(tmp_
     assert diffs == [], "\n".join(map(str, diffs))
     v = pd.read_csv(run / "vehicles.csv")
     assert (v["t_enter_s"].notna()).sum() >= 5  # vehicles were controlled
+
+
+def test_replay_never_writes_into_the_run_it_verifies_nor_over_another_run(tmp_path, capsys):
+    """``replay RUN --out RUN`` (or a folder inside it, or one that holds it) would overwrite the
+    recording and compare it with itself: exit 2, nothing touched, and an edited recording still
+    "differs" in a replay elsewhere. An --out that holds another run is refused unless --force."""
+    run = tmp_path / "run"
+    shutil.copytree(GOLDEN, run)
+    v = pd.read_csv(run / "vehicles.csv", dtype={"vehicle_id": str})
+    v.loc[0, "energy_u2"] = v.loc[0, "energy_u2"] * 1.01 + 0.01
+    v.to_csv(run / "vehicles.csv", index=False)
+    edited = (run / "vehicles.csv").read_bytes()
+    for out in (run, run / "inner", tmp_path):
+        assert main(["replay", str(run), "--out", str(out), "--no-progress"]) == 2
+        assert "would overwrite the run it verifies" in capsys.readouterr().err
+    assert (run / "vehicles.csv").read_bytes() == edited and not (run / "inner").exists()
+    other = tmp_path / "other"
+    shutil.copytree(GOLDEN, other)
+    before = (other / "summary.json").read_bytes()
+    assert main(["replay", str(run), "--out", str(other), "--no-progress"]) == 2
+    assert "not empty" in capsys.readouterr().err and (other / "summary.json").read_bytes() == before
+    kept = tmp_path / "kept"
+    assert main(["replay", str(run), "--out", str(kept), "--no-progress"]) == 1  # the edit differs
+    assert "difference(s) beyond" in capsys.readouterr().out
+    assert (kept / "summary.json").is_file()
