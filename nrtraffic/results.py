@@ -46,6 +46,7 @@ class RunResult:
 
 
 PARTIAL_TRAJECTORIES = "trajectories.partial.arrows"  # the stream a run writes until it closes
+LANE_WIDTH_M = 3.2  # SUMO's default lane width: a tracking error beyond it is warned of [m]
 
 
 class TrajectoryWriter:
@@ -510,6 +511,12 @@ def run_summary(f: RunFacts, veh: pd.DataFrame, trips: dict, demand_veh_h, statu
     if due:
         warnings.append(f"{len(due)} vehicles due to depart could not enter the network yet (mean wait "
                         f"{np.mean([sim_t - t for t in due]):.0f} s, not in the delay)")
+    if f.vehicles_spawned == 0 and not due:
+        warnings.append("the run had no vehicle: check the demand and the duration")
+    track = metrics.max_or_none(adm["max_tracking_error_m"])
+    if track is not None and track > LANE_WIDTH_M:
+        warnings.append(f"a vehicle ran {track:.1f} m from its plan, more than a lane's width ({LANE_WIDTH_M:g} m): "
+                        "see max_tracking_error_m in vehicles.csv")
     return {
         "scenario": f.scenario,
         "control": f.label,

@@ -188,6 +188,31 @@ def writable_dir(path: Path) -> None:
         raise OutputError(f"--out {path}: cannot write there: {exc.strerror or exc}") from None
 
 
+def _sumo_missing() -> str | None:
+    """What of SUMO is missing (its binaries, libsumo), with the package to install; None when
+    nothing is."""
+    from nrtraffic.sumo import netbuild
+
+    try:
+        for name in ("sumo", "netconvert"):
+            netbuild.sumo_binary(name)
+    except netbuild.SumoToolError as exc:
+        return f"{exc} (or run make install)"
+    try:
+        import libsumo  # noqa: F401
+    except ImportError:
+        return "libsumo is not installed: pip install libsumo (or run make install)"
+    return None
+
+
+def slug(name: str) -> str:
+    """A scenario name as a folder name under runs/: letters, digits, ``.``, ``_`` and ``-`` only
+    (a name such as ``../../x`` cannot lead out of it)."""
+    import re
+
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._-") or "run"
+
+
 def _claim(out: Path, sc, seed, duration, control: str, force: bool) -> None:
     """Check the scenario against its network and build its demand (exit 2 on an error, before
     anything is written), then make ``out`` ready for the run."""
@@ -240,6 +265,11 @@ def main(argv: list[str] | None = None) -> int:
     _add_bench(sub)
     _add_schema(sub)
     args = parser.parse_args(argv)
+    if args.command != "schema":
+        missing = _sumo_missing()
+        if missing:
+            print(f"nrtraffic: {missing}", file=sys.stderr)
+            return 2
     from nrtraffic.engine import RunFailed
     from nrtraffic.scenario import ScenarioError
     from nrtraffic.sumo.network import NetworkError
@@ -312,7 +342,7 @@ def _cmd_run(args) -> int:
 
     sc = scenario.load(args.scenario, args.overrides, allow_outside=args.allow_outside)
     seed = sc.general.seed if args.seed is None else args.seed
-    out = args.out or Path("runs") / f"{sc.general.name}-seed{seed}"
+    out = args.out or Path("runs") / f"{slug(sc.general.name)}-seed{seed}"
     _claim(out, sc, seed, args.duration, "nrtraffic", args.force)
     res = run_scenario(sc, out, seed=seed, duration_s=args.duration, progress=not args.no_progress, gui=args.gui)
     _report(out)

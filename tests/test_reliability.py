@@ -361,3 +361,46 @@ def test_deeply_nested_toml_is_refused_with_exit_2(value, tmp_path, capsys):
     assert main(["run", str(CROSS4), "--out", str(tmp_path / "o"), "--duration", "5", "--no-progress",
                  "--set", f"outputs.warmup_s={value}"]) == 2
     assert "nested too deeply" in capsys.readouterr().err
+
+
+def test_runs_that_did_not_do_their_job_say_so(tmp_path):
+    """A run with no vehicle, and one whose tracker barely tracks (alpha 1e-3 instead of 100: the
+    car falls tens of metres behind its plan), finish with a warning in summary.json."""
+    assert main(["run", str(CROSS4), "--duration", "5", "--set", "demand.rate_veh_h=0", "--set",
+                 "demand.mean_headway_s=0", "--out", str(tmp_path / "none"), "--no-progress"]) == 0
+    s = json.loads((tmp_path / "none" / "summary.json").read_text())
+    assert s["vehicles_spawned"] == 0 and any("no vehicle" in w for w in s["warnings"])
+    paper = SCENARIOS / "paper_curved" / "scenario.toml"
+    assert main(["run", str(paper), "--duration", "30", "--set", "controller.alpha=0.001", "--out",
+                 str(tmp_path / "slack"), "--no-progress"]) == 0
+    s = json.loads((tmp_path / "slack" / "summary.json").read_text())
+    assert s["max_tracking_error_m"] > 3.2 and any("more than a lane's width" in w for w in s["warnings"])
+
+
+def test_missing_sumo_is_exit_2_naming_the_package(tmp_path, monkeypatch, capsys):
+    """SUMO's binaries or libsumo missing: exit 2 before anything runs, naming what to install (a
+    Python traceback for run and baseline)."""
+    from nrtraffic.sumo import netbuild
+
+    def absent(name):
+        raise netbuild.SumoToolError(f"SUMO binary {name!r} not found: install the 'eclipse-sumo' package "
+                                     "(pip install eclipse-sumo)")
+
+    with monkeypatch.context() as m:
+        m.setattr(netbuild, "sumo_binary", absent)
+        for cmd in (["run", str(CROSS4)], ["baseline", str(CROSS4), "--junction", "priority"]):
+            assert main(cmd + ["--out", str(tmp_path / "o"), "--duration", "5"]) == 2
+            assert "eclipse-sumo" in capsys.readouterr().err
+    with monkeypatch.context() as m:
+        m.setitem(sys.modules, "libsumo", None)  # import libsumo raises ImportError
+        assert main(["run", str(CROSS4), "--out", str(tmp_path / "o"), "--duration", "5"]) == 2
+        assert "pip install libsumo" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+def test_the_default_run_folder_is_a_safe_name_under_runs(tmp_path, monkeypatch):
+    """A scenario named ``../../escape`` runs into runs/escape-seed1, not two folders up."""
+    from runners.cli import slug
+
+    assert slug("../../escape") == "escape" and slug("cross4 counts/peak") == "cross4_counts_peak"
+    assert slug("...") == "run"

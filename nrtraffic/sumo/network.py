@@ -176,9 +176,9 @@ def sumo_options() -> set[str]:
         import subprocess
         import xml.etree.ElementTree as ET
 
-        import sumo
+        from nrtraffic.sumo.netbuild import sumo_binary
 
-        exe = Path(sumo.SUMO_HOME) / "bin" / "sumo"
+        exe = sumo_binary("sumo")
         xml = subprocess.run([str(exe), "--save-template", "stdout"], capture_output=True, text=True, check=True).stdout
         for section in ET.fromstring(xml[xml.index("<"):]):
             _SUMO_OPTIONS.update(opt.tag for opt in section)
@@ -195,9 +195,9 @@ def sumo_writing_options() -> set[str]:
         import re
         import subprocess
 
-        import sumo
+        from nrtraffic.sumo.netbuild import sumo_binary
 
-        exe = Path(sumo.SUMO_HOME) / "bin" / "sumo"
+        exe = sumo_binary("sumo")
         text = subprocess.run([str(exe), "--save-template", "stdout", "--save-commented"], capture_output=True,
                               text=True, check=True).stdout
         section = None
