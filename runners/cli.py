@@ -122,7 +122,7 @@ def _add_cluster_args(p) -> None:
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
     p.add_argument("--force", action="store_true",
                    help="run again, and replace, run directories in --out that were made with another "
-                        "configuration (without it such a resume is refused)")
+                        "configuration (without it such a resume is refused); also allows more than 20000 runs")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 

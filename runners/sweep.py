@@ -46,6 +46,8 @@ NOT_FIGURES = {"scenario", "seed", "status", "error", "nrtraffic_version", "sumo
                "junction_type", "los"}
 
 MIN_SEEDS_FOR_CI = 5  # the figures draw no confidence interval from fewer seeds
+MAX_RUNS = 20000  # a sweep with more runs (a typo in --seeds, say) needs --force
+SCHEDULER_TIMEOUT_S = 10.0  # how long to try to reach --scheduler [s]
 
 _ONE_SIMULATION = threading.Lock()  # per worker process, whatever its thread count
 
@@ -295,7 +297,11 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
         with dask.config.set({"distributed.scheduler.allowed-failures": 1,
                               "distributed.scheduler.worker-saturation": 1.0}):
             if scheduler:
-                client, cluster = Client(scheduler), None
+                try:
+                    client, cluster = Client(scheduler, timeout=SCHEDULER_TIMEOUT_S), None
+                except (OSError, TimeoutError, ValueError) as exc:
+                    raise SweepError(f"--scheduler {scheduler}: cannot reach it within {SCHEDULER_TIMEOUT_S:g} s "
+                                     f"({type(exc).__name__}): start it, or check the address") from None
             else:
                 cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                        dashboard_address=":0", memory_limit=0)
@@ -689,7 +695,12 @@ def main(args) -> int:
         raise SweepError(f"--workers {args.workers}: need at least one worker process")
     grid = parse_grid(args.grid)
     controls = [NRTRAFFIC] + parse_baselines(args.baseline)
-    jobs = plan(args.scenario, parse_seeds(args.seeds), grid, controls, args.out, args.duration,
+    seeds = parse_seeds(args.seeds)
+    n = len(seeds) * len(controls) * math.prod(len(v) for _, v in grid)
+    if n > MAX_RUNS and not args.force:
+        raise SweepError(f"the sweep has {n} runs, more than {MAX_RUNS}: narrow --seeds or --grid, or --force to "
+                         "run them all")
+    jobs = plan(args.scenario, seeds, grid, controls, args.out, args.duration,
                 tuple(args.overrides), allow_outside=args.allow_outside)
     check_resume(jobs, force=args.force)
     remove_stale(args.out)

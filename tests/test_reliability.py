@@ -404,3 +404,14 @@ def test_the_default_run_folder_is_a_safe_name_under_runs(tmp_path, monkeypatch)
 
     assert slug("../../escape") == "escape" and slug("cross4 counts/peak") == "cross4_counts_peak"
     assert slug("...") == "run"
+
+
+def test_a_sweep_too_large_or_with_an_unreachable_scheduler_is_refused_in_one_line(tmp_path, capsys):
+    """More than 20000 runs (a typo in --seeds) needs --force; a scheduler nobody listens at is one
+    line with exit 2, not a traceback from Dask."""
+    assert main(["sweep", str(CROSS4), "--seeds", "0:30000", "--out", str(tmp_path / "a"), "--no-progress"]) == 2
+    assert "30001 runs, more than 20000" in capsys.readouterr().err
+    assert main(["sweep", str(CROSS4), "--seeds", "1:2", "--duration", "5", "--scheduler", "tcp://127.0.0.1:1",
+                 "--out", str(tmp_path / "b"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "cannot reach it" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
