@@ -162,10 +162,38 @@ def _clean(o):
     return o
 
 
+# summary.json is padded with trailing blanks to this size [bytes], so that on a full disk the last
+# summary can still be written over the earlier one in place, without new space
+SUMMARY_RESERVE_BYTES = 64 * 1024
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    """``data`` into ``path``, under a temporary name and renamed when whole."""
+    tmp = Path(path).with_name(Path(path).name + ".tmp")
+    try:
+        tmp.write_bytes(data)
+        tmp.replace(path)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
 def write_summary(path: Path, summary: dict) -> None:
-    tmp = Path(path).with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(_clean(summary), indent=2, default=_json_default) + "\n")
-    tmp.replace(path)
+    """summary.json, whole or not at all: written under a temporary name and renamed, padded with
+    blanks to :data:`SUMMARY_RESERVE_BYTES`. Where that fails (a full disk), it is written over the
+    earlier summary in place, in the space that one holds, when it fits."""
+    text = json.dumps(_clean(summary), indent=2, default=_json_default) + "\n"
+    data = text.encode()
+    data += b" " * max(SUMMARY_RESERVE_BYTES - len(data) - 1, 0) + (b"\n" if len(data) < SUMMARY_RESERVE_BYTES else b"")
+    try:
+        _write_atomic(path, data)
+    except OSError:
+        path = Path(path)
+        if not path.is_file() or path.stat().st_size < len(text.encode()):
+            raise
+        size = path.stat().st_size
+        with open(path, "r+b") as fh:  # the same size: no new blocks
+            fh.write(text.encode() + b" " * (size - len(text.encode())))
 
 
 def write_vehicles(path: Path, vehicles: pd.DataFrame) -> None:

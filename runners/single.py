@@ -179,6 +179,11 @@ def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: 
     run directory ``out``, also when the run stops early."""
     resolved = resolve(sc, seed, duration_s)
     (out / "scenario.resolved.toml").write_text(resolved_text(sc, seed, duration_s))
+    # a summary from the start, that holds the space of the last one (write_summary): a run that
+    # fills the disk still ends with one that says so
+    write_summary(out / "summary.json", {"scenario": sc.general.name, "control": engine_options.get("label", "nrtraffic"),
+                                         "seed": resolved.general.seed, "status": "running", "error": None,
+                                         "sim_time_s": 0.0, **(extra_summary or {})})
     writer = TrajectoryWriter(out / "trajectories.parquet")
 
     def checkpoint(result: RunResult) -> None:
@@ -209,10 +214,22 @@ def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: 
 
 def _write(result: RunResult, out: Path) -> None:
     """vehicles.csv, movements.csv, then summary.json (each under a temporary name, renamed when
-    whole)."""
-    write_vehicles(out / "vehicles.csv", result.vehicles)
-    write_movements(out / "movements.csv", result)
-    if "approaches" in result.extra:
-        write_table(out / "approaches.csv", result.extra["approaches"])
+    whole). Where a table cannot be written (a full disk), summary.json still is, saying
+    ``"status": "failed"`` and why (in the space the earlier summary holds), and the OSError goes
+    on."""
+    try:
+        write_vehicles(out / "vehicles.csv", result.vehicles)
+        write_movements(out / "movements.csv", result)
+        if "approaches" in result.extra:
+            write_table(out / "approaches.csv", result.extra["approaches"])
+    except OSError as exc:
+        s = result.summary
+        s["status"] = "failed"
+        s["error"] = (f"{s['error']}; " if s.get("error") else "") + f"the run's tables could not be written: {exc}"
+        write_summary(out / "summary.json", s)
+        raise
     write_summary(out / "summary.json", result.summary)
-    update_manifest(out)
+    try:
+        update_manifest(out)
+    except OSError:
+        pass  # (a full disk: the manifest keeps what it had)

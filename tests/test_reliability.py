@@ -33,7 +33,12 @@ def _wait_for_checkpoint(proc, out, timeout=240.0):
         if proc.poll() is not None:
             pytest.fail(f"the run ended early: {proc.communicate()}")
         if (out / "summary.json").is_file() and (out / PARTIAL_TRAJECTORIES).is_file():
-            return json.loads((out / "summary.json").read_text())
+            try:
+                s = json.loads((out / "summary.json").read_text())
+            except ValueError:  # (never half-written: renamed whole, or overwritten in place)
+                pytest.fail("summary.json could not be read")
+            if s.get("sim_time_s", 0) > 0:  # a checkpoint, not the summary written at the start
+                return s
         time.sleep(0.2)
     proc.kill()
     pytest.fail("no checkpoint within the time limit")
@@ -415,3 +420,43 @@ def test_a_sweep_too_large_or_with_an_unreachable_scheduler_is_refused_in_one_li
                  "--out", str(tmp_path / "b"), "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert "cannot reach it" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("fills_after", [1, 2, 3, 4])  # (a 30 s run writes 4 files: 4 is the last summary)
+def test_a_disk_that_fills_at_any_write_still_ends_with_a_summary_that_says_failed(fills_after, tmp_path,
+                                                                                    monkeypatch, capsys):
+    """The disk fills after the run's first ``fills_after`` file writes (the summary written at the
+    start, the checkpoints, the final tables): every later write of a new file fails with ENOSPC.
+    summary.json, which holds its space from the start, is still overwritten in place at the end:
+    readable, ``"status": "failed"``, and why; exit 1."""
+    from nrtraffic import results
+
+    calls = {"n": 0}
+    atomic, table = results._write_atomic, results.write_table
+
+    def count():
+        calls["n"] += 1
+        if calls["n"] > fills_after:
+            raise OSError(28, "No space left on device")
+
+    def full_atomic(path, data):
+        count()
+        atomic(path, data)
+
+    def full_table(path, t):
+        count()
+        table(path, t)
+
+    monkeypatch.setattr(results, "_write_atomic", full_atomic)
+    monkeypatch.setattr(results, "write_table", full_table)
+    import runners.single as single
+    monkeypatch.setattr(single, "write_table", full_table)
+    out = tmp_path / "run"
+    code = main(["run", str(CROSS4), "--duration", "30", "--out", str(out), "--no-progress"])
+    s = json.loads((out / "summary.json").read_text())
+    if fills_after == 4:  # every table was written, and the last summary went in place: a whole run
+        assert code == 0 and s["status"] == "ok" and s["sim_time_s"] == pytest.approx(30.0)
+        return
+    assert code == 1
+    assert "No space left on device" in capsys.readouterr().err
+    assert s["status"] == "failed" and "No space left" in s["error"]
