@@ -298,11 +298,7 @@ def test_a_bad_route_file_is_refused_before_sumo_starts(case, tmp_path, capsys):
     the element, and nothing is written (the run exited 1 after SUMO had started, or, for a flow of
     0 veh/h, with a ZeroDivisionError)."""
     body, message = _ROUTE_CASES[case]
-    d = tmp_path / "tee3"
-    d.mkdir()
-    for f in (SCENARIOS / "tee3").iterdir():
-        if f.is_file():
-            (d / f.name).write_bytes(f.read_bytes())
+    d = copy_scenario("tee3", tmp_path / "tee3")
     (d / "flows.rou.xml").write_text(f"<routes>\n{body}\n</routes>\n")
     out = tmp_path / "o"
     assert main(["run", str(d / "routes.toml"), "--out", str(out), "--duration", "20", "--no-progress"]) == 2
@@ -320,11 +316,7 @@ def test_a_bad_demand_is_refused_before_sumo_starts(old, new, flags, message, tm
     """Counts for an approach the junction lacks, a U-turn count where it has none, open-ended random
     demand for a run without an end: exit 2 before anything is written (these exited 1 once SUMO
     had started)."""
-    d = tmp_path / "cross4"
-    d.mkdir()
-    for f in (SCENARIOS / "cross4").iterdir():
-        if f.is_file():
-            (d / f.name).write_bytes(f.read_bytes())
+    d = copy_scenario("cross4", tmp_path / "cross4")
     counts = d / "counts.toml"
     if old:
         text = counts.read_text()
@@ -344,11 +336,7 @@ def test_sweep_flags_and_demand_are_checked_before_any_worker_starts(tmp_path, c
     run starts, naming the flag or the key (a negative seed failed inside a Dask worker)."""
     assert main(["sweep", str(CROSS4), "--seeds=-1:0", "--out", str(tmp_path / "a"), "--no-progress"]) == 2
     assert "seeds are 0 to 2^31 - 1" in capsys.readouterr().err
-    d = tmp_path / "cross4"
-    d.mkdir()
-    for f in (SCENARIOS / "cross4").iterdir():
-        if f.is_file():
-            (d / f.name).write_bytes(f.read_bytes())
+    d = copy_scenario("cross4", tmp_path / "cross4")
     counts = d / "counts.toml"
     counts.write_text(counts.read_text().replace('approach = "E_in"', 'approach = "Q_in"', 1))
     assert main(["sweep", str(counts), "--seeds", "1:2", "--out", str(tmp_path / "b"), "--no-progress"]) == 2
