@@ -1,6 +1,6 @@
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from nrtraffic.planning.conflicts import CONFLICT
@@ -115,20 +115,40 @@ def _occupancy(a, other):
 @settings(max_examples=60, deadline=None)
 @given(st.lists(st.tuples(st.sampled_from("ABC"), st.integers(0, 1), st.floats(0.0, 1.5)), min_size=1, max_size=9),
        st.integers(0, 4), st.floats(0.0, 2.0))
+@example([("A", 0, 0.0), ("A", 0, 0.03125), ("A", 0, 0.0), ("A", 1, 0.0), ("A", 0, 0.0)], 0, 0.0)  # cars 0.3 m apart
 def test_batch_keeps_lane_order_the_cap_and_every_reservation(arrivals, cap, margin):
     """Any batch: same-lane order never changes, no vehicle is served after more than ``cap``
     vehicles that arrived later, and (checked from the assignments alone) no two conflicting
     vehicles' occupancies of their shared area, widened by the margin, overlap; same-lane
-    vehicles merge at least the spacing apart."""
-    reqs, D = [], 380.0
+    vehicles merge at least the spacing apart. A vehicle is held (no assignment) only where it is
+    closer to the one ahead on its lane than a car's length and the barrier's gap (7 m), where no
+    plan can keep behind it; the rest of its lane waits behind it."""
+    reqs, D, last = [], 380.0, {}
+    close = set()  # vehicles closer than 7 m behind the one ahead on their lane
     for k, (mv, lane, gap) in enumerate(arrivals):
         D += gap * 10.0  # later arrivals are further from the zone when the batch closes
-        reqs.append(_req(f"v{k}", mv, D, lane=f"{mv}{lane}"))
+        key = f"{mv}{lane}"
+        if key in last and D - last[key] < 7.0:
+            close.add(f"v{k}")
+        last[key] = D
+        reqs.append(_req(f"v{k}", mv, D, lane=key))
     c = _coordinator(cap=cap, margin=margin)
     out = c.schedule_batch(reqs)
     assert sorted(r.vehicle_id for r, _ in out) == sorted(r.vehicle_id for r in reqs)
-    served = [r.vehicle_id for r, _ in out]
     rank = {r.vehicle_id: k for k, r in enumerate(reqs)}
+    held = {r.vehicle_id: r.lane for r, a in out if isinstance(a, ScheduleInfeasible)}
+    first_held = {}
+    for vid, lane in held.items():
+        if lane not in first_held or rank[vid] < rank[first_held[lane]]:
+            first_held[lane] = vid
+    assert set(first_held.values()) <= close
+    for vid, lane in held.items():  # the rest of its lane waits behind it
+        assert rank[vid] >= rank[first_held[lane]]
+    for r in reqs:
+        if r.lane in first_held and rank[r.vehicle_id] > rank[first_held[r.lane]]:
+            assert r.vehicle_id in held
+    out = [(r, a) for r, a in out if not isinstance(a, ScheduleInfeasible)]
+    served = [r.vehicle_id for r, _ in out]
     for k, vid in enumerate(served):
         assert sum(rank[w] > rank[vid] for w in served[:k]) <= cap
     by_lane: dict = {}
