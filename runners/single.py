@@ -31,7 +31,10 @@ def check_demand(sc: scenario_mod.Scenario, seed: int | None, duration_s: float 
     from nrtraffic.demand import Demand
 
     try:
-        return len(Demand.of(sc, seed, duration_s).departures())
+        demand = Demand.of(sc, seed, duration_s)
+        departures = demand.departures()
+        _check_depart_speeds(sc, demand, departures)
+        return len(departures)
     except scenario_mod.ScenarioError:
         raise
     except NetworkError:
@@ -40,6 +43,25 @@ def check_demand(sc: scenario_mod.Scenario, seed: int | None, duration_s: float 
         raise scenario_mod.ScenarioError(f"demand: a route file is not valid XML: {exc}") from None
     except (ValueError, KeyError, ZeroDivisionError, OverflowError) as exc:
         raise scenario_mod.ScenarioError(f"demand: {exc}") from None
+
+
+def _check_depart_speeds(sc: scenario_mod.Scenario, demand, departures) -> None:
+    """No departure faster than the speed limit of its first edge, which SUMO refuses once it
+    runs ("Departure speed ... too high for the departure edge")."""
+    from nrtraffic.sumo.network import read_net
+
+    net = read_net(sc.network_path)
+    limit: dict[str, float] = {}
+    for vid, route, _, speed, *_ in departures:
+        first = demand.route_edges(route)[0]
+        if first not in limit:
+            limit[first] = net.getEdge(first).getSpeed() if net.hasEdge(first) else float("inf")
+        if speed > limit[first] + 1e-9:
+            where = (f"vehicles.{vid}.depart_speed_mps" if any(v.id == vid for v in sc.vehicles) else
+                     "its departSpeed in demand.sumo_routes" if sc.demand.sumo_routes else "demand.entry_speed_mps")
+            raise scenario_mod.ScenarioError(
+                f"vehicle {vid} departs at {speed:g} m/s on edge {first}, whose speed limit is {limit[first]:g} m/s "
+                f"(SUMO refuses it): lower {where}")
 
 
 def prepare_run_dir(sc: scenario_mod.Scenario, out: Path) -> Path:

@@ -311,11 +311,13 @@ def test_a_bad_route_file_is_refused_before_sumo_starts(case, tmp_path, capsys):
     ("straight = 100.0", "straight = 100.0\nu_turn = 10.0", [], "u_turn"),
     ("", "", ["--duration", "0", "--set", "scenario.duration_s=0", "--set", "demand.rate_veh_h=100"],
      "random demand needs"),
+    ("", "", ["--duration", "20", "--set", "demand.entry_speed_mps=16", "--set", "planning.v_max_mps=20"],
+     "departs at 16 m/s on edge S_in, whose speed limit is 13.89 m/s"),
 ])
 def test_a_bad_demand_is_refused_before_sumo_starts(old, new, flags, message, tmp_path, capsys):
     """Counts for an approach the junction lacks, a U-turn count where it has none, open-ended random
-    demand for a run without an end: exit 2 before anything is written (these exited 1 once SUMO
-    had started)."""
+    demand for a run without an end, a departure faster than the departure edge allows: exit 2
+    before anything is written (these exited 1 once SUMO had started)."""
     d = copy_scenario("cross4", tmp_path / "cross4")
     counts = d / "counts.toml"
     if old:
@@ -324,7 +326,7 @@ def test_a_bad_demand_is_refused_before_sumo_starts(old, new, flags, message, tm
         counts.write_text(text.replace(old, new, 1))
     out = tmp_path / "o"
     args = ["run", str(counts), "--out", str(out), "--no-progress"] + (flags or ["--duration", "20"])
-    if flags:  # (the random-demand scenario: cross4 itself)
+    if flags:  # (these: cross4 itself)
         args[1] = str(d / "scenario.toml")
     assert main(args) == 2
     assert message in capsys.readouterr().err
