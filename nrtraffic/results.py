@@ -167,7 +167,7 @@ def _clean(o):
 SUMMARY_RESERVE_BYTES = 64 * 1024
 
 
-def _write_atomic(path: Path, data: bytes) -> None:
+def write_atomic(path: Path, data: bytes) -> None:
     """``data`` into ``path``, under a temporary name and renamed when whole."""
     tmp = Path(path).with_name(Path(path).name + ".tmp")
     try:
@@ -186,7 +186,7 @@ def write_summary(path: Path, summary: dict) -> None:
     data = text.encode()
     data += b" " * max(SUMMARY_RESERVE_BYTES - len(data) - 1, 0) + (b"\n" if len(data) < SUMMARY_RESERVE_BYTES else b"")
     try:
-        _write_atomic(path, data)
+        write_atomic(path, data)
     except OSError:
         path = Path(path)
         if not path.is_file() or path.stat().st_size < len(text.encode()):

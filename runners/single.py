@@ -9,7 +9,8 @@ from pathlib import Path
 
 from nrtraffic import scenario as scenario_mod
 from nrtraffic.engine import Engine, RunFailed
-from nrtraffic.results import RunResult, TrajectoryWriter, write_movements, write_summary, write_table, write_vehicles
+from nrtraffic.results import (RunResult, TrajectoryWriter, write_atomic, write_movements, write_summary, write_table,
+                               write_vehicles)
 from nrtraffic.sumo.network import NetworkError, check_scenario, check_sumo_args
 
 
@@ -52,12 +53,13 @@ def _check_depart_speeds(sc: scenario_mod.Scenario, demand, departures) -> None:
 
     net = read_net(sc.network_path)
     limit: dict[str, float] = {}
+    listed = {v.id for v in sc.vehicles}
     for vid, route, _, speed, *_ in departures:
         first = demand.route_edges(route)[0]
         if first not in limit:
             limit[first] = net.getEdge(first).getSpeed() if net.hasEdge(first) else float("inf")
         if speed > limit[first] + 1e-9:
-            where = (f"vehicles.{vid}.depart_speed_mps" if any(v.id == vid for v in sc.vehicles) else
+            where = (f"vehicles.{vid}.depart_speed_mps" if vid in listed else
                      "its departSpeed in demand.sumo_routes" if sc.demand.sumo_routes else "demand.entry_speed_mps")
             raise scenario_mod.ScenarioError(
                 f"vehicle {vid} departs at {speed:g} m/s on edge {first}, whose speed limit is {limit[first]:g} m/s "
@@ -134,9 +136,7 @@ def update_manifest(out: Path) -> None:
 
 
 def _write_json(path: Path, obj) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1) + "\n")
-    tmp.replace(path)
+    write_atomic(path, (json.dumps(obj, indent=1) + "\n").encode())
 
 
 def claim_run_dir(out: Path, sc: scenario_mod.Scenario, seed: int | None, duration_s: float | None, control: str,

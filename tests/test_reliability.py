@@ -422,7 +422,7 @@ def test_a_disk_that_fills_at_any_write_still_ends_with_a_summary_that_says_fail
     from nrtraffic import results
 
     calls = {"n": 0}
-    atomic, table = results._write_atomic, results.write_table
+    atomic, table = results.write_atomic, results.write_table
 
     def count():
         calls["n"] += 1
@@ -437,7 +437,7 @@ def test_a_disk_that_fills_at_any_write_still_ends_with_a_summary_that_says_fail
         count()
         table(path, t)
 
-    monkeypatch.setattr(results, "_write_atomic", full_atomic)
+    monkeypatch.setattr(results, "write_atomic", full_atomic)
     monkeypatch.setattr(results, "write_table", full_table)
     import runners.single as single
     monkeypatch.setattr(single, "write_table", full_table)

@@ -489,9 +489,7 @@ class Coordinator:
         spacing = D - lead.D + lead.evaluate(grid)[0]  # centre to centre if this car stood still [m]
         gap = min(self.settings.rear_end_spacing_m, max(float(spacing.min()) - 0.5, 0.5))
         x = spacing - gap  # what it may have covered by each instant [m]
-        d_acc = v_cap * v_cap / (2.0 * a)
-        T = np.where(x <= 0.0, 0.0, np.where(x <= d_acc, np.sqrt(2.0 * np.maximum(x, 0.0) / a),
-                                             v_cap / a + (x - d_acc) / v_cap))
+        T = np.array([travel_time(d, a, v_cap) for d in x.tolist()])
         return max(t0, float(np.max(grid - T)))
 
     def _keep_behind(self, prof: Profile, prev: Assignment, t0: float, v0: float, D: float,
