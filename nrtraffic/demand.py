@@ -171,6 +171,20 @@ class Demand:
             edges += list(self.movement_table[leg][2][1:])
         return tuple(edges)
 
+    def _uncontrolled_hint(self, edges: list[str]) -> str:
+        """Where ``edges`` lead into junctions of the network that the scenario does not control,
+        the fix: control them, or drop the flows ('' when no edge does)."""
+        from nrtraffic.sumo.network import read_net
+
+        net = read_net(self.sc.network_path)
+        nodes = sorted({net.getEdge(e).getToNode().getID() for e in edges if net.hasEdge(e)}
+                       - set(self.layout.junctions))
+        if not nodes:
+            return ""
+        listed = " ".join(f'[[junctions]] id = "{n}"' for n in nodes)
+        return (f"; they lead into {', '.join(nodes)}, which the scenario does not control: add {listed}, "
+                f"or remove their [[demand.flows]]")
+
     def approach_rates(self) -> dict[str, tuple[float, list[str], np.ndarray]]:
         """Per approach: its arrival rate [veh/h] (before the intervals' scale), its movements and
         their shares of it; empty without random demand. Raises ValueError naming the key when
@@ -185,7 +199,7 @@ class Demand:
             unknown = sorted(known - set(approaches))
             if unknown:
                 raise ValueError(f"demand.flows: {', '.join(unknown)} is not an approach of the junction "
-                                 f"({', '.join(approaches)})")
+                                 f"({', '.join(approaches)}){self._uncontrolled_hint(unknown)}")
             for f in d.flows:
                 names = approaches[f.approach]
                 turns = {self.movement_table[n][1]: n for n in names}

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, get_type_hints
 
+from nrtraffic.limits import MAX_DURATION_S, MAX_SEED  # noqa: F401  (re-exported)
 from nrtraffic.planning.coordinator import CoordinatorSettings
 from nrtraffic.planning.profiles import PlanBounds
 from nrtraffic.vehicle.params import BicycleParams, preset
@@ -26,8 +27,6 @@ class ScenarioError(ValueError):
     """A scenario file is malformed, names an unknown key, or has an invalid value."""
 
 
-MAX_DURATION_S = 7 * 24 * 3600.0  # longest simulated time accepted [s] (a week)
-MAX_SEED = 2**31 - 1  # SUMO's --seed is a signed 32-bit integer
 
 
 @dataclass(frozen=True)

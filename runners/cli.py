@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 import threading
 from pathlib import Path
 
-from nrtraffic.scenario import MAX_DURATION_S, MAX_SEED
+from nrtraffic.limits import MAX_DURATION_S, MAX_SEED  # (light: the flags are checked before SUMO loads)
+from runners import interrupts
 
 
 def _bounded(parse, lo, hi, name: str, what: str):
@@ -229,15 +229,6 @@ def _claim(out: Path, sc, seed, duration, control: str, force: bool) -> None:
         raise OutputError(f"--out {out}: cannot clear the earlier run: {exc}") from None
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, handled like Ctrl-C: the run stops, and what it finished is written."""
-
-
-def _on_sigterm(signum, frame) -> None:
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # one is enough: let the clean-up finish
-    raise Terminated("terminated by SIGTERM")
-
-
 def _add_schema(sub) -> None:
     p = sub.add_parser("schema", help="the scenario file format as a JSON Schema (or a key reference)",
                        description="Print the JSON Schema of scenario files, generated from the declaration of the "
@@ -248,8 +239,22 @@ def _add_schema(sub) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, _on_sigterm)
+    """The ``nrtraffic`` command; returns its exit status. SIGTERM and Ctrl-C are handled from here
+    on (:mod:`runners.interrupts`): a run that they stop always leaves a summary.json."""
+    interrupts.install()
+    try:
+        code = _main(argv)
+        stop = interrupts.pending()
+        if stop is not None and code == 0:
+            print(f"nrtraffic: stopped by {stop} after the run had finished; its outputs are complete",
+                  file=sys.stderr)
+            code = 1
+        return code
+    finally:
+        interrupts.uninstall()
+
+
+def _main(argv: list[str] | None) -> int:
     parser = argparse.ArgumentParser(
         prog="nrtraffic",
         description="Co-simulation of signal-free intersections: SUMO + energy-optimal planning + "
@@ -265,6 +270,8 @@ def main(argv: list[str] | None = None) -> int:
     _add_bench(sub)
     _add_schema(sub)
     args = parser.parse_args(argv)
+    if args.command not in ("run", "baseline"):
+        interrupts.arm()  # (a run arms once its run directory says "running")
     if args.command != "schema":
         missing = _sumo_missing()
         if missing:

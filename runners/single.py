@@ -7,11 +7,14 @@ import json
 import shutil
 from pathlib import Path
 
+import pandas as pd
+
 from nrtraffic import scenario as scenario_mod
 from nrtraffic.engine import Engine, RunFailed
 from nrtraffic.results import (RunResult, TrajectoryWriter, write_atomic, write_movements, write_summary, write_table,
                                write_vehicles)
 from nrtraffic.sumo.network import NetworkError, check_scenario, check_sumo_args
+from runners import interrupts
 
 
 def check(sc: scenario_mod.Scenario) -> None:
@@ -212,9 +215,23 @@ def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: 
         result.summary.update(extra_summary or {})
         _write(result, out)
 
-    engine = Engine(resolved, out, trajectories=writer, progress=progress, checkpoint=checkpoint, **engine_options)
     try:
-        result = engine.run()
+        interrupts.arm()  # a SIGTERM or Ctrl-C that came during the checks stops the run here
+        engine = Engine(resolved, out, trajectories=writer, progress=progress, checkpoint=checkpoint,
+                        **engine_options)
+        result = engine.run()  # (turns an interrupt while it runs into RunFailed)
+    except KeyboardInterrupt as exc:  # before the engine ran
+        try:
+            writer.close()
+        except OSError:
+            pass
+        failed = {"scenario": sc.general.name, "control": engine_options.get("label", "nrtraffic"),
+                  "seed": resolved.general.seed, "status": "failed", "sim_time_s": 0.0,
+                  "error": f"stopped before the simulation started: {type(exc).__name__}: {exc}",
+                  **(extra_summary or {})}
+        write_summary(out / "summary.json", failed)
+        update_manifest(out)
+        raise RunFailed(failed["error"], RunResult(failed, pd.DataFrame(), out)) from exc
     except NetworkError:  # the junction or its zones do not suit: nothing was simulated, nothing is kept
         update_manifest(out)
         remove_run_files(out, keep=sc.network_path)
@@ -227,6 +244,7 @@ def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: 
             raise RunFailed(f"{exc}; and the figures could not be written into {out}: {werr}", exc.result) from exc
         raise
     result.summary.update(extra_summary or {})
+    interrupts.defer()  # the run is done: a signal now lets its figures and report be finished
     try:
         _write(result, out)
     except OSError as exc:

@@ -64,6 +64,34 @@ def test_sigterm_stops_a_run_and_keeps_every_output_readable(tmp_path):
         ET.parse(out / f)
 
 
+def test_sigterm_or_ctrl_c_at_any_moment_leaves_a_readable_summary(tmp_path):
+    """30 moments from 0.1 s to 20 s after the command starts (interpreter start, imports, the
+    checks before SUMO, set-up, the run), SIGTERM and SIGINT in turn: every run ends with exit 1
+    and a summary.json that says it failed and names the signal. Five at a time, so that more of
+    them land in the slower start."""
+    import random
+
+    rng = random.Random(20261202)
+    moments = sorted(rng.uniform(0.1, 20.0) for _ in range(30))
+    cases = [(t, signal.SIGTERM if i % 2 else signal.SIGINT, tmp_path / f"run{i:02d}") for i, t in enumerate(moments)]
+    for k in range(0, len(cases), 5):
+        batch = []
+        t0 = time.monotonic()
+        for t, sig, out in cases[k:k + 5]:
+            batch.append((t0 + t, sig, out, _start_long_run(out)))
+        for when, sig, out, proc in batch:
+            time.sleep(max(0.0, when - time.monotonic()))
+            assert proc.poll() is None, proc.communicate()
+            proc.send_signal(sig)
+        for when, sig, out, proc in batch:
+            _, err = proc.communicate(timeout=180)
+            assert proc.returncode == 1, (when - t0, sig, err)
+            s = json.loads((out / "summary.json").read_text())
+            name = "SIGTERM" if sig == signal.SIGTERM else "SIGINT"
+            assert s["status"] == "failed" and name in s["error"], (when - t0, s)
+            assert 0 <= s["sim_time_s"] < 3600
+
+
 def test_sigkill_leaves_the_last_checkpoint_and_the_trajectories_up_to_it(tmp_path):
     out = tmp_path / "run"
     proc = _start_long_run(out)
@@ -330,6 +358,18 @@ def test_a_bad_demand_is_refused_before_sumo_starts(old, new, flags, message, tm
         args[1] = str(d / "scenario.toml")
     assert main(args) == 2
     assert message in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_corridor_flows_into_a_junction_that_is_not_controlled_are_refused_naming_the_fix(tmp_path, capsys):
+    """corridor3 without J3 in [[junctions]] but with its flows: exit 2 before SUMO starts, naming the
+    flows, the junction they lead into and the two fixes."""
+    d = copy_scenario("corridor3", tmp_path / "c3", '[[junctions]]\nid = "J3"\n', "")
+    out = tmp_path / "o"
+    assert main(["run", str(d / "scenario.toml"), "--out", str(out), "--duration", "20", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "E_J3, J2_J3, N3_J3, S3_J3 is not an approach" in err
+    assert 'add [[junctions]] id = "J3", or remove their [[demand.flows]]' in err
     assert not out.exists()
 
 

@@ -1,0 +1,85 @@
+"""SIGTERM and Ctrl-C (SIGINT) for the ``nrtraffic`` command, from its first instruction to its last.
+
+A signal must never end the process without a run directory that says what happened. Until a run
+has written its first ``summary.json`` (``"status": "running"``) nothing can be kept, so a signal
+is *deferred*: it is noted, the pre-run checks and the set-up go on, and it is raised as soon as the
+run is *armed* (:func:`arm`), which then stops like any interrupt of a running simulation: what was
+finished is written and ``summary.json`` says ``"status": "failed"`` and why. A second signal while
+one is deferred stops at once (a way out of a slow check). Once the run's results are written the
+command defers again (:func:`defer`), so that its figures and report are finished; :func:`pending`
+then tells the command that it was asked to stop.
+
+Only the command installs these handlers (:func:`install`, in the main thread); in a library call,
+a test or a sweep's worker :func:`arm` and :func:`defer` do nothing.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, handled like Ctrl-C: the run stops, and what it finished is written."""
+
+
+_installed: dict[int, object] = {}  # signal -> the handler before install()
+_armed = False
+_pending: int | None = None
+
+
+def _interrupt(signum: int) -> KeyboardInterrupt:
+    if signum == signal.SIGTERM:
+        return Terminated("terminated by SIGTERM")
+    return KeyboardInterrupt("interrupted (SIGINT)")
+
+
+def _handler(signum, frame) -> None:
+    global _pending
+    if _armed or _pending is not None:
+        if signum == signal.SIGTERM:
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)  # one is enough: let the clean-up finish
+        raise _interrupt(signum)
+    _pending = signum
+
+
+def install() -> None:
+    """Handle SIGTERM and SIGINT, deferred until :func:`arm` (main thread only; elsewhere nothing)."""
+    global _armed, _pending
+    if threading.current_thread() is not threading.main_thread():
+        return
+    _armed, _pending = False, None
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        _installed[sig] = signal.signal(sig, _handler)
+
+
+def uninstall() -> None:
+    """The handlers from before :func:`install` back (the command returns to a caller)."""
+    global _armed, _pending
+    for sig, old in _installed.items():
+        signal.signal(sig, old)
+    _installed.clear()
+    _armed, _pending = False, None
+
+
+def arm() -> None:
+    """From now on a signal interrupts at once; one that came before is raised here."""
+    global _armed, _pending
+    if not _installed:
+        return
+    _armed = True
+    if _pending is not None:
+        signum, _pending = _pending, None
+        raise _interrupt(signum)
+
+
+def defer() -> None:
+    """From now on a signal is only noted (:func:`pending`): what the run finished is being written."""
+    global _armed
+    if _installed:
+        _armed = False
+
+
+def pending() -> str | None:
+    """The name of a signal noted while deferred (``"SIGTERM"``), or None."""
+    return None if _pending is None else signal.Signals(_pending).name
