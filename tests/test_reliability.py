@@ -209,6 +209,14 @@ def _scenario_copy(tmp_path, old=None, new=None, extra=""):
      "--summary-output would write files outside the run folder"),
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--error-log", "e.txt"]', "",
      "--error-log would write files outside the run folder"),
+    # SUMO's one-letter options and the = form (-l wrote the log anywhere)
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["-l", "x.log"]', "",
+     "-l (--log) would write files outside the run folder"),
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["-C", "x.sumocfg"]', "",
+     "-C (--save-configuration) would write files outside the run folder"),
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--netstate-dump=n.xml"]', "",
+     "--netstate-dump=n.xml would write files outside the run folder"),
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["-q"]', "", "no option -q"),
 ])
 def test_scenarios_that_would_run_wrong_exit_2_naming_the_problem(old, new, extra, message, tmp_path, capsys):
     d = _scenario_copy(tmp_path, old or None, new or None, extra)

@@ -214,20 +214,44 @@ def sumo_writing_options() -> set[str]:
     return _SUMO_WRITING
 
 
+_SUMO_SHORT: dict[str, str] = {}
+
+
+def sumo_short_options() -> dict[str, str]:
+    """SUMO's one-letter options and the long names they stand for (``"l" -> "log"``), from
+    ``sumo --help``, read once."""
+    if not _SUMO_SHORT:
+        import re
+        import subprocess
+
+        from nrtraffic.sumo.netbuild import sumo_binary
+
+        text = subprocess.run([sumo_binary("sumo"), "--help"], capture_output=True, text=True).stdout
+        for m in re.finditer(r"^\s+-([A-Za-z]), --([\w.-]+)", text, re.MULTILINE):
+            _SUMO_SHORT[m.group(1)] = m.group(2)
+    return _SUMO_SHORT
+
+
 def check_sumo_args(args: tuple[str, ...]) -> None:
-    """Every ``--name`` in ``args`` (``sumo.extra_args``) must be one of SUMO's options, and none
-    may write a file: it would land outside the run folder (relative to where nrtraffic was
-    started), beside nothing that names the run; the run writes SUMO's outputs it uses itself
-    (``outputs.sumo_fcd`` for fcd.xml)."""
-    bad = [a for a in args if a.startswith("--")]
-    if not bad:
+    """Every option in ``args`` (``sumo.extra_args``: ``--name``, ``--name=value`` or SUMO's
+    one-letter ``-x``) must be one of SUMO's, and none may write a file: it would land outside the
+    run folder (relative to where nrtraffic was started), beside nothing that names the run; the
+    run writes SUMO's outputs it uses itself (``outputs.sumo_fcd`` for fcd.xml). A value such as
+    ``-5`` is not an option."""
+    import re
+
+    given = [(a, a[2:].split("=")[0]) for a in args if a.startswith("--")]
+    short = [a for a in args if re.match(r"-[A-Za-z]", a)]
+    if not given and not short:
         return
+    letters = sumo_short_options()
+    unknown = [a for a in short if a[1] not in letters]
+    given += [(a, letters[a[1]]) for a in short if a[1] in letters]
     known = sumo_options()
-    names = [a[2:].split("=")[0] for a in bad]
-    unknown = [a for a, n in zip(bad, names) if n not in known]
+    unknown += [a for a, n in given if n not in known]
     if unknown:
         raise NetworkError(f"sumo.extra_args: SUMO has no option {', '.join(unknown)}")
-    writing = [a for a, n in zip(bad, names) if n in sumo_writing_options()]
+    writing = [a if a.startswith("--") else f"{a} (--{n})" for a, n in given if n in sumo_writing_options()]
     if writing:
         raise NetworkError(f"sumo.extra_args: {', '.join(writing)} would write files outside the run folder; "
                            "leave it out (outputs.sumo_fcd = true writes fcd.xml into the run)")
