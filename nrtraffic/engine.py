@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nrtraffic import __version__, measure
+from nrtraffic import __version__, measure, metrics
 from nrtraffic.control import batch as kb
 from nrtraffic.control.kernel import Kernel
 from nrtraffic.demand import Demand
@@ -107,6 +107,9 @@ class Engine:
         crossings and figures are measured the same way.
     network : a network to use instead of the scenario's (the baselines' junction control).
     label : what drove the vehicles, for the summary ("nrtraffic" or the baseline's name).
+    signalised : whether the junctions are signals, for the HCM thresholds of level of service
+        (default: by ``label``, :func:`~nrtraffic.metrics.is_signalised`; an ``as_is`` baseline
+        says it from its network).
     additional : further SUMO additional files (a baseline's coordinated signal offsets).
     checkpoint : called with the figures so far (a :class:`RunResult` whose summary says
         ``"status": "running"``) about every ``CHECKPOINT_WALL_S`` seconds of wall time, so that a
@@ -117,12 +120,13 @@ class Engine:
     def __init__(self, scenario, workdir: Path, seed: int | None = None, duration_s: float | None = None,
                  trajectories: TrajectoryWriter | None = None, progress: bool = False, control: bool = True,
                  network: Path | None = None, label: str = "nrtraffic", checkpoint=None, gui: bool = False,
-                 additional: tuple = ()):
+                 additional: tuple = (), signalised: bool | None = None):
         self.sc = scenario
         self.additional = tuple(additional)
         self.control = control
         self.network_path = Path(network) if network is not None else scenario.network_path
         self.label = label
+        self.signalised = metrics.is_signalised(label) if signalised is None else bool(signalised)
         self.checkpoint = checkpoint
         self.gui = gui
         self.seed = scenario.general.seed if seed is None else int(seed)
@@ -424,7 +428,8 @@ class Engine:
         o = self.sc.outputs
         junctions = self.layout.junctions if self.layout is not None else {}
         facts = RunFacts(
-            scenario=self.sc.general.name, label=self.label, seed=self.seed, sim_time_s=float(self.t),
+            scenario=self.sc.general.name, label=self.label, signalised=self.signalised, seed=self.seed,
+            sim_time_s=float(self.t),
             wall_time_s=wall, warmup_s=o.warmup_s, measure_end_s=o.measure_end_s, control=self.control,
             barriers=(self.sc.barriers.longitudinal, self.sc.barriers.lateral),
             collisions_sumo=self.collisions_sumo, collisions_geometric=self.collisions_geometric,

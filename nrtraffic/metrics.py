@@ -48,8 +48,9 @@ LOS_UNSIGNALISED = (10.0, 15.0, 25.0, 35.0, 50.0)
 def is_signalised(control: str) -> bool:
     """Whether a run's control (summary.json ``control``) is judged by the signalised HCM
     thresholds: SUMO's traffic lights (a run's ``sumo_traffic_light``, a sweep's ``traffic_light``,
-    coordinated or not); nrtraffic and the unsignalised baselines are not."""
-    return str(control).removeprefix("sumo_") in ("traffic_light", "traffic_light_coordinated")
+    coordinated or not, and actuated ones); nrtraffic and the unsignalised baselines are not. An
+    ``as_is`` run says it in its summary (``signalised``), from its network."""
+    return str(control).removeprefix("sumo_") in ("traffic_light", "traffic_light_coordinated", "actuated")
 
 
 def level_of_service(delay_s: float, signalised: bool) -> str:

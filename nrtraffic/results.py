@@ -242,7 +242,7 @@ def write_movements(path: Path, result: "RunResult") -> pd.DataFrame:
     if doc_path.is_file():
         known = [(m["approach"], m["turn"]) for m in json.loads(doc_path.read_text())["movements"].values()]
     table = movement_table(result.vehicles, s.get("measure_from_s") or 0.0, s.get("measure_to_s") or 0.0,
-                           is_signalised(s.get("control")), known)
+                           bool(s.get("signalised", is_signalised(s.get("control")))), known)
     write_table(path, table)
     return table
 
@@ -406,11 +406,11 @@ def corridor_table(veh: pd.DataFrame, trips: dict, n_junctions: int, w0: float, 
     return out
 
 
-def junction_table(veh: pd.DataFrame, junctions: dict, label: str, w0: float, w1: float) -> dict:
+def junction_table(veh: pd.DataFrame, junctions: dict, signalised: bool, w0: float, w1: float) -> dict:
     """summary.json ``junctions``: per controlled junction, the crossings that entered its
     control zone in the window and left its merging zone: how many, their throughput [veh/h],
-    mean and 95th-percentile delay [s] and the HCM letter (by the signalised thresholds for
-    ``label`` a traffic light), and its zones."""
+    mean and 95th-percentile delay [s] and the HCM letter (by the signalised thresholds where
+    ``signalised``), and its zones."""
     from nrtraffic import metrics
 
     out = {}
@@ -420,7 +420,7 @@ def junction_table(veh: pd.DataFrame, junctions: dict, label: str, w0: float, w1
         mean = metrics.mean_or_none(g["delay_s"])
         out[jid] = {"vehicles": int(len(g)), "throughput_veh_h": len(g) / hours if hours > 0 else None,
                     "mean_delay_s": mean, "p95_delay_s": metrics.percentile_or_none(g["delay_s"], 95),
-                    "los": (metrics.level_of_service(mean, metrics.is_signalised(label))
+                    "los": (metrics.level_of_service(mean, signalised)
                             if mean is not None else None),
                     "control_zone_m": j.control_zone_m, "merging_zone_m": j.merging_zone_m}
     return out
@@ -479,6 +479,7 @@ class RunFacts:
 
     scenario: str
     label: str  # what drove the vehicles: "nrtraffic" or the baseline's name
+    signalised: bool  # the junctions are signals (HCM's signalised level-of-service thresholds)
     seed: int
     sim_time_s: float
     wall_time_s: float
@@ -548,6 +549,7 @@ def run_summary(f: RunFacts, veh: pd.DataFrame, trips: dict, demand_veh_h, statu
     return {
         "scenario": f.scenario,
         "control": f.label,
+        "signalised": f.signalised,
         "seed": f.seed,
         "status": status,
         "error": None if error is None else f"{type(error).__name__}: {error}",
@@ -564,13 +566,13 @@ def run_summary(f: RunFacts, veh: pd.DataFrame, trips: dict, demand_veh_h, statu
         "demand_veh_h": demand or None,
         "served_share": served,
         "control_zones_cut_m": {k: round(v, 3) for k, v in f.zone_cuts.items()},
-        "junctions": junction_table(veh, f.junctions, f.label, w0, w1),
+        "junctions": junction_table(veh, f.junctions, f.signalised, w0, w1),
         "corridor": corridor_table(veh, trips, len(f.junctions), w0, w1),
         "vehicles_waiting_to_enter": len(due),
         "mean_wait_to_enter_s": float(np.mean([sim_t - t for t in due])) if due else None,
         "mean_depart_delay_s": metrics.mean_or_none(done["depart_delay_s"]),
         "mean_delay_s": mean_delay,
-        "los": (metrics.level_of_service(mean_delay, metrics.is_signalised(f.label))
+        "los": (metrics.level_of_service(mean_delay, f.signalised)
                 if mean_delay is not None else None),
         "mean_sumo_time_loss_s": metrics.mean_or_none(done["sumo_time_loss_s"]),
         "vehicles_held": int((veh.loc[inside, "t_held_s"] > 0).sum()),

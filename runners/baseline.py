@@ -6,30 +6,48 @@ from pathlib import Path
 
 from nrtraffic import scenario as scenario_mod
 from nrtraffic.results import RunResult
-from nrtraffic.sumo.netbuild import with_junction_type
+from nrtraffic.sumo.netbuild import BASELINES, actuated, is_signalised_network, with_junction_type
 from runners.single import execute, prepare_run_dir
 
 
 def run_baseline(sc: scenario_mod.Scenario, junction_type: str, out: Path, seed: int | None = None,
                  duration_s: float | None = None, progress: bool = False) -> RunResult:
-    """SUMO drives every vehicle of the scenario's demand through its junctions rebuilt as
-    ``junction_type``; the run directory has the same files and figures (tracking and barrier
-    figures are null). ``traffic_light_coordinated``: traffic lights at every junction, their
-    offsets set for green waves along the run's own demand by SUMO's tlsCoordinator
-    (:func:`coordinate_signals`)."""
+    """SUMO drives every vehicle of the scenario's demand through its controlled junctions under
+    ``junction_type`` (:data:`~nrtraffic.sumo.netbuild.BASELINES`); the run directory has the same
+    files and figures (tracking and barrier figures are null).
+
+    - ``as_is``: the network's own control, unchanged (its signal programmes, priorities and right
+      of way); level of service by the signalised thresholds where every controlled junction is a
+      signal.
+    - ``actuated``: SUMO's gap-based actuated signals on the network's own phases
+      (:func:`~nrtraffic.sumo.netbuild.actuated`).
+    - ``traffic_light``, ``priority``, ``allway_stop``, ``right_before_left``: the junctions rebuilt
+      with SUMO's default for that control; ``traffic_light_coordinated``: traffic lights at every
+      junction, their offsets set for green waves along the run's own demand by SUMO's
+      tlsCoordinator (:func:`coordinate_signals`)."""
     ids = [j.id for j in sc.controlled_junctions()]
     if not ids:
         raise scenario_mod.ScenarioError("baselines need a scenario with a [junction] or [[junctions]] (rebuilt "
                                          "with SUMO's control)")
+    if junction_type not in BASELINES:
+        raise scenario_mod.ScenarioError(f"unknown baseline {junction_type!r}: use one of {', '.join(BASELINES)}")
     out = prepare_run_dir(sc, out)
-    net = with_junction_type(sc.network_path, ids, junction_type,
-                             out / "sumo" / f"{sc.network_path.stem}.{junction_type}.net.xml")
+    signalised = None
+    if junction_type == "as_is":
+        net = out / "sumo" / sc.network_path.name  # (prepare_run_dir's copy, unchanged)
+        signalised = is_signalised_network(net, ids)
+    elif junction_type == "actuated":
+        net = actuated(sc.network_path, ids, out / "sumo" / f"{sc.network_path.stem}.actuated.net.xml")
+    else:
+        net = with_junction_type(sc.network_path, ids, junction_type,
+                                 out / "sumo" / f"{sc.network_path.stem}.{junction_type}.net.xml")
     additional = ()
     if junction_type == "traffic_light_coordinated":
         additional = (coordinate_signals(sc, net, out / "sumo", seed, duration_s),)
     # the trajectory file stays empty: nothing is tracked
     return execute(sc, out, seed, duration_s, progress, extra_summary={"junction_type": junction_type},
-                   control=False, network=net, label=f"sumo_{junction_type}", additional=additional)
+                   control=False, network=net, label=f"sumo_{junction_type}", additional=additional,
+                   signalised=signalised)
 
 
 def coordinate_signals(sc: scenario_mod.Scenario, net: Path, sdir: Path, seed: int | None,

@@ -65,13 +65,16 @@ def _add_paper(sub) -> None:
 
 
 def _add_baseline(sub) -> None:
-    from nrtraffic.sumo.netbuild import JUNCTION_TYPES
+    from nrtraffic.sumo.netbuild import BASELINES
 
     p = sub.add_parser("baseline", help="the same demand under SUMO's own junction control",
                        description="Run a junction scenario's demand and seed with SUMO driving every vehicle "
                                    "under its own junction control, into a run directory of the same form.")
     p.add_argument("scenario", type=Path, help="scenario.toml with a [junction] (or its folder)")
-    p.add_argument("--junction", required=True, choices=JUNCTION_TYPES, help="SUMO's junction control")
+    p.add_argument("--junction", required=True, choices=BASELINES, metavar="CONTROL",
+                   help="SUMO's junction control: as_is (the network's own control, unchanged: its signal "
+                        "programmes and right of way), actuated (SUMO's gap-based actuated signals on the "
+                        "network's own phases), or the junctions rebuilt as " + ", ".join(BASELINES[2:]))
     p.add_argument("--seed", type=_seed, default=None, help="random seed (default: the scenario's)")
     p.add_argument("--duration", type=_duration, default=None, metavar="S", help="simulated time [s]")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="run directory")
@@ -86,7 +89,7 @@ def _add_baseline(sub) -> None:
 
 
 def _add_sweep(sub) -> None:
-    from nrtraffic.sumo.netbuild import JUNCTION_TYPES
+    from nrtraffic.sumo.netbuild import BASELINES
 
     p = sub.add_parser(
         "sweep", help="many seeds and grid points on Dask, aggregated with confidence intervals",
@@ -103,7 +106,7 @@ def _add_sweep(sub) -> None:
                    help="a scenario setting and its values (repeatable; the grid is the product), "
                         "e.g. --grid demand.rate_veh_h=200,400,600")
     p.add_argument("--baseline", default=None, metavar="CONTROL[,CONTROL...]",
-                   help=f"also run SUMO's junction control on the same seeds: {', '.join(JUNCTION_TYPES)}")
+                   help=f"also run SUMO's junction control on the same seeds: {', '.join(BASELINES)}")
     p.add_argument("--duration", type=_duration, default=None, metavar="S", help="simulated time per run [s] "
                    "(default: the scenario's)")
     p.add_argument("--allow-outside", action="store_true",

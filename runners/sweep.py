@@ -34,10 +34,10 @@ from pathlib import Path
 
 import pandas as pd
 
-from nrtraffic.sumo.netbuild import JUNCTION_TYPES
+from nrtraffic.sumo.netbuild import BASELINES as SUMO_BASELINES
 
 NRTRAFFIC = "nrtraffic"
-BASELINES = JUNCTION_TYPES  # SUMO's junction controls a sweep can add as baselines
+BASELINES = SUMO_BASELINES  # SUMO's junction controls a sweep can add as baselines
 # the figures of the markdown table and the figures (the CSVs hold every figure of summary.json)
 HEADLINE = ("throughput_veh_h", "mean_delay_s", "mean_sumo_time_loss_s", "mean_fuel_ml", "collisions",
             "collisions_geometric")
@@ -417,10 +417,18 @@ def mean_ci(r, k: str, nd: int = 1) -> str:
     return "n/a" if m != m else f"{m:.{nd}f}" + ("" if c != c else f" ± {c:.{nd}f}")
 
 
+def _signalised(r) -> bool:
+    """A summary row's junctions are signals (its runs' ``signalised``, else by its control)."""
+    from nrtraffic.metrics import is_signalised
+
+    s = r.get("signalised_mean", math.nan)
+    return bool(s >= 0.5) if s == s else is_signalised(r["control"])
+
+
 def table(summ: pd.DataFrame, df: pd.DataFrame) -> tuple[str, pd.DataFrame]:
     """The study table (the one in sweep.md and report.html): a note saying what it shows, and one
     row of formatted cells per grid point and control."""
-    from nrtraffic.metrics import is_signalised, level_of_service
+    from nrtraffic.metrics import level_of_service
 
     keys = grid_keys(summ)
     seeds = sorted(df["seed"].unique())
@@ -456,7 +464,7 @@ def table(summ: pd.DataFrame, df: pd.DataFrame) -> tuple[str, pd.DataFrame]:
         delay = r.get("mean_delay_s_mean", math.nan)
         cells = [f"{r[k]}" for k in keys] + [
             r["control"], f"{r['runs']} ({r['failed']})", mean_ci(r, "throughput_veh_h", 0), *extra, mean_ci(r, "mean_delay_s"),
-            level_of_service(delay, is_signalised(r["control"])),
+            level_of_service(delay, _signalised(r)),
             mean_ci(r, "mean_sumo_time_loss_s"), mean_ci(r, "mean_fuel_ml"),
             f"{total(r, 'collisions')} / {total(r, 'collisions_geometric')}"]
         rows.append(cells)
@@ -491,7 +499,7 @@ def corridor_tables(summ: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
     """A corridor (summary.json ``junctions`` and ``corridor``): per grid point and control, each
     junction's mean delay and level of service, and along the arterial, per direction, the through
     trips' travel time, stops and delay (means over seeds with the 95 % confidence half-width)."""
-    from nrtraffic.metrics import is_signalised, level_of_service
+    from nrtraffic.metrics import level_of_service
 
     keys = grid_keys(summ)
     out = []
@@ -518,7 +526,7 @@ def corridor_tables(summ: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
                 row += [mean_ci(r, f"{part}:{name}:{k}", nd) for _, k, nd in figs]
                 if part == "junctions":
                     m = r.get(f"junctions:{name}:mean_delay_s_mean", math.nan)
-                    row.append("n/a" if m != m else level_of_service(m, is_signalised(r["control"])))
+                    row.append("n/a" if m != m else level_of_service(m, _signalised(r)))
                 rows.append(row)
         out.append((note, pd.DataFrame(rows, columns=columns)))
     return out

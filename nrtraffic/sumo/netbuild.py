@@ -68,14 +68,58 @@ def build_network(nodes: Path, edges: Path, output: Path, extra_args: list[str] 
 # SUMO's junction controls the baselines rebuild a network with; "traffic_light_coordinated" is
 # "traffic_light" at every junction with offsets for green waves (runners/baseline.py)
 JUNCTION_TYPES = ("traffic_light", "traffic_light_coordinated", "priority", "allway_stop", "right_before_left")
+# every baseline: the network's own control unchanged ("as_is"), its signals made actuated
+# ("actuated"), or its junctions rebuilt with one of SUMO's controls
+BASELINES = ("as_is", "actuated") + JUNCTION_TYPES
+# actuated phases where a programme gives none: netconvert's own defaults for actuated signals
+# (--tls.min-dur, --tls.max-dur) [s]
+ACTUATED_MIN_DUR_S = 5
+ACTUATED_MAX_DUR_S = 50
 
 
-def with_junction_type(net: Path, junction_ids, junction_type: str, output: Path) -> Path:
+def _netconvert(args: list[str], what: str) -> None:
+    proc = subprocess.run([sumo_binary("netconvert")] + args, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise SumoToolError(f"netconvert failed {what}:\n{proc.stderr.strip()}")
+
+
+def _plain(net: Path, prefix: Path) -> None:
+    """``net`` as plain XML files ``prefix.nod.xml``, ``.edg.xml``, ``.con.xml``, ``.tll.xml``."""
+    proc = subprocess.run([sumo_binary("netconvert"), "--sumo-net-file", str(net), "--plain-output-prefix",
+                           str(prefix), "--no-warnings", "true"], capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise SumoToolError(f"netconvert could not read {net}:\n{proc.stderr.strip()}")
+
+
+def junction_kinds(net: Path, junction_ids) -> dict[str, str]:
+    """SUMO's type of each of ``junction_ids`` in ``net`` (``priority``, ``traffic_light``, ...)."""
+    import xml.etree.ElementTree as ET
+
+    wanted = set(junction_ids)
+    kinds = {}
+    for _, el in ET.iterparse(net, events=("start",)):
+        if el.tag == "junction" and el.get("id") in wanted:
+            kinds[el.get("id")] = el.get("type", "")
+    return kinds
+
+
+def is_signalised_network(net: Path, junction_ids) -> bool:
+    """Whether every one of ``junction_ids`` is a signal in ``net`` (the HCM thresholds of an
+    ``as_is`` baseline)."""
+    kinds = junction_kinds(net, junction_ids)
+    return bool(kinds) and all(k.startswith("traffic_light") for k in kinds.values())
+
+
+def with_junction_type(net: Path, junction_ids, junction_type: str, output: Path,
+                       extra_args: tuple[str, ...] = ()) -> Path:
     """A copy of ``net`` whose junctions ``junction_ids`` (one id or several) have SUMO's
     ``junction_type`` (the baselines: traffic_light, priority, allway_stop, right_before_left; a
-    coordinated traffic light is built as traffic_light). Round trip through plain XML."""
+    coordinated traffic light is built as traffic_light). Round trip through plain XML; the signal
+    programmes of the other junctions are kept as the network has them, those of ``junction_ids``
+    are SUMO's default for their new type. ``extra_args`` go to netconvert."""
     import re
     import tempfile
+    import xml.etree.ElementTree as ET
 
     if junction_type not in JUNCTION_TYPES:
         raise ValueError(f"unknown junction type {junction_type!r}; use one of {', '.join(JUNCTION_TYPES)}")
@@ -83,22 +127,68 @@ def with_junction_type(net: Path, junction_ids, junction_type: str, output: Path
     node_type = "traffic_light" if junction_type == "traffic_light_coordinated" else junction_type
     with tempfile.TemporaryDirectory() as tmp:
         prefix = Path(tmp) / "plain"
-        proc = subprocess.run([sumo_binary("netconvert"), "--sumo-net-file", str(net), "--plain-output-prefix",
-                               str(prefix), "--no-warnings", "true"], capture_output=True, text=True)
-        if proc.returncode != 0:
-            raise SumoToolError(f"netconvert could not read {net}:\n{proc.stderr.strip()}")
+        _plain(net, prefix)
         nod = Path(f"{prefix}.nod.xml")
         text = nod.read_text()
+        rebuilt_tls = set()
         for junction_id in junction_ids:
-            pat = re.compile(r'(<node id="' + re.escape(junction_id) + r'"[^>]*?type=")([^"]*)(")')
-            if not pat.search(text):
+            pat = re.compile(r'<node id="' + re.escape(junction_id) + r'"[^>]*?/?>')
+            m = pat.search(text)
+            if not m:
                 raise SumoToolError(f"junction {junction_id!r} not found in {net}")
-            text = pat.sub(lambda m: m.group(1) + node_type + m.group(3), text)
+            tl = re.search(r'\btl="([^"]*)"', m.group(0))
+            rebuilt_tls.add(tl.group(1) if tl else junction_id)
+            node = re.sub(r'\s(tl|tlType|tlLayout|controlledInner)="[^"]*"', "", m.group(0))
+            node = re.sub(r'(\stype=")[^"]*(")', lambda t: t.group(1) + node_type + t.group(2), node) \
+                if ' type="' in node else node.replace(f'id="{junction_id}"', f'id="{junction_id}" type="{node_type}"', 1)
+            text = text[:m.start()] + node + text[m.end():]
         nod.write_text(text)
         args = ["--node-files", str(nod), "--edge-files", f"{prefix}.edg.xml", "--connection-files",
                 f"{prefix}.con.xml", "--output-file", str(output), "--no-turnarounds", "true",
-                "--offset.disable-normalization", "true", "--no-warnings", "true", "--precision", "4"]
-        proc = subprocess.run([sumo_binary("netconvert")] + args, capture_output=True, text=True)
-        if proc.returncode != 0:
-            raise SumoToolError(f"netconvert failed building the {junction_type} variant:\n{proc.stderr.strip()}")
+                "--offset.disable-normalization", "true", "--no-warnings", "true", "--precision", "4",
+                *extra_args]
+        tll = Path(f"{prefix}.tll.xml")
+        if tll.is_file():  # the other junctions' programmes, as the network has them
+            tree = ET.parse(tll)
+            root = tree.getroot()
+            for el in list(root):
+                if el.get("id" if el.tag == "tlLogic" else "tl") in rebuilt_tls:
+                    root.remove(el)
+            if len(root):
+                tree.write(tll)
+                args += ["--tllogic-files", str(tll)]
+        _netconvert(args, f"building the {junction_type} variant of {net}")
     return output
+
+
+def actuated(net: Path, junction_ids, output: Path) -> Path:
+    """A copy of ``net`` whose junctions ``junction_ids`` have SUMO's actuated (gap-based) signals
+    on their own phases: a signal programme of the network is kept, phase by phase, with
+    ``type="actuated"``, and each of its green phases that has no ``minDur``/``maxDur`` gets
+    ``minDur = min(duration, 5 s)`` and ``maxDur = max(duration, 50 s)`` (netconvert's defaults);
+    a junction without signals gets netconvert's default actuated programme. SUMO places the
+    detectors itself when it loads the network."""
+    import xml.etree.ElementTree as ET
+
+    junction_ids = (junction_ids,) if isinstance(junction_ids, str) else tuple(junction_ids)
+    kinds = junction_kinds(net, junction_ids)
+    plain = [j for j in junction_ids if not kinds.get(j, "").startswith("traffic_light")]
+    src = Path(net)
+    if plain:
+        src = with_junction_type(net, plain, "traffic_light", output, ("--tls.default-type", "actuated"))
+    tree = ET.parse(src)
+    root = tree.getroot()
+    to_node = {e.get("id"): e.get("to") for e in root.iter("edge")}
+    tls = {c.get("tl") for c in root.iter("connection") if c.get("tl") and to_node.get(c.get("from")) in junction_ids}
+    for logic in root.iter("tlLogic"):
+        if logic.get("id") not in tls:
+            continue
+        logic.set("type", "actuated")
+        for phase in logic.iter("phase"):
+            state, dur = phase.get("state", ""), float(phase.get("duration", "0"))
+            if any(c in state for c in "Gg") and "y" not in state and phase.get("minDur") is None:
+                phase.set("minDur", f"{min(dur, ACTUATED_MIN_DUR_S):g}")
+                phase.set("maxDur", f"{max(dur, ACTUATED_MAX_DUR_S):g}")
+    tree.write(output, encoding="UTF-8", xml_declaration=True)
+    return output
+
