@@ -440,10 +440,10 @@ class Engine:
             wall_breakdown=self.wall_breakdown, versions=(__version__, sumo_version()))
         status = ("ok" if error is None else "gridlock" if isinstance(error, Gridlock) else "failed") \
             if final else "running"
-        demand = self.demand.demand_veh_h if self.layout is not None else None
+        demand = self.demand.demand_veh_h if self.demand is not None else None  # (None: stopped while it was built)
         summary = run_summary(facts, veh, trips, demand, status, error)
         extra = {}
-        if final and self.sc.controlled_junctions() and self.layout is not None:
+        if final and self.sc.controlled_junctions() and self.demand is not None:
             queues = parse_queues(self.workdir / "queues.xml")
             extra["approaches"] = approach_table(veh, queues, self.layout.approaches, self.demand.demand_veh_h,
                                                  summary["measure_from_s"], summary["measure_to_s"])

@@ -26,6 +26,7 @@ class Terminated(KeyboardInterrupt):
 _installed: dict[int, object] = {}  # signal -> the handler before install()
 _armed = False
 _pending: int | None = None
+_received: int | None = None  # the signal that interrupted the run (armed), for its summary
 
 
 def _interrupt(signum: int) -> KeyboardInterrupt:
@@ -35,8 +36,9 @@ def _interrupt(signum: int) -> KeyboardInterrupt:
 
 
 def _handler(signum, frame) -> None:
-    global _pending
+    global _pending, _received
     if _armed or _pending is not None:
+        _received = signum
         if signum == signal.SIGTERM:
             signal.signal(signal.SIGTERM, signal.SIG_IGN)  # one is enough: let the clean-up finish
         raise _interrupt(signum)
@@ -45,31 +47,31 @@ def _handler(signum, frame) -> None:
 
 def install() -> None:
     """Handle SIGTERM and SIGINT, deferred until :func:`arm` (main thread only; elsewhere nothing)."""
-    global _armed, _pending
+    global _armed, _pending, _received
     if threading.current_thread() is not threading.main_thread():
         return
-    _armed, _pending = False, None
+    _armed, _pending, _received = False, None, None
     for sig in (signal.SIGTERM, signal.SIGINT):
         _installed[sig] = signal.signal(sig, _handler)
 
 
 def uninstall() -> None:
     """The handlers from before :func:`install` back (the command returns to a caller)."""
-    global _armed, _pending
+    global _armed, _pending, _received
     for sig, old in _installed.items():
         signal.signal(sig, old)
     _installed.clear()
-    _armed, _pending = False, None
+    _armed, _pending, _received = False, None, None
 
 
 def arm() -> None:
     """From now on a signal interrupts at once; one that came before is raised here."""
-    global _armed, _pending
+    global _armed, _pending, _received
     if not _installed:
         return
     _armed = True
     if _pending is not None:
-        signum, _pending = _pending, None
+        signum, _pending, _received = _pending, None, _pending
         raise _interrupt(signum)
 
 
@@ -83,3 +85,10 @@ def defer() -> None:
 def pending() -> str | None:
     """The name of a signal noted while deferred (``"SIGTERM"``), or None."""
     return None if _pending is None else signal.Signals(_pending).name
+
+
+def received() -> str | None:
+    """The name of the signal that interrupted the run, or None. A library the run was in may have
+    turned the interrupt into an error of its own (numba, stopped while it compiled), so that the
+    error does not say it; the run's summary then does."""
+    return None if _received is None else signal.Signals(_received).name

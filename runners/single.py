@@ -215,34 +215,39 @@ def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: 
         result.summary.update(extra_summary or {})
         _write(result, out)
 
+    def failed(error: str) -> RunFailed:  # nothing the engine could write: a summary that says so
+        try:
+            writer.close()
+        except OSError:
+            pass
+        summary = {"scenario": sc.general.name, "control": engine_options.get("label", "nrtraffic"),
+                   "seed": resolved.general.seed, "status": "failed", "sim_time_s": 0.0,
+                   "error": _named(error), **(extra_summary or {})}
+        write_summary(out / "summary.json", summary)
+        update_manifest(out)
+        return RunFailed(summary["error"], RunResult(summary, pd.DataFrame(), out))
+
     try:
         interrupts.arm()  # a SIGTERM or Ctrl-C that came during the checks stops the run here
         engine = Engine(resolved, out, trajectories=writer, progress=progress, checkpoint=checkpoint,
                         **engine_options)
         result = engine.run()  # (turns an interrupt while it runs into RunFailed)
     except KeyboardInterrupt as exc:  # before the engine ran
-        try:
-            writer.close()
-        except OSError:
-            pass
-        failed = {"scenario": sc.general.name, "control": engine_options.get("label", "nrtraffic"),
-                  "seed": resolved.general.seed, "status": "failed", "sim_time_s": 0.0,
-                  "error": f"stopped before the simulation started: {type(exc).__name__}: {exc}",
-                  **(extra_summary or {})}
-        write_summary(out / "summary.json", failed)
-        update_manifest(out)
-        raise RunFailed(failed["error"], RunResult(failed, pd.DataFrame(), out)) from exc
+        raise failed(f"stopped before the simulation started: {type(exc).__name__}: {exc}") from exc
     except NetworkError:  # the junction or its zones do not suit: nothing was simulated, nothing is kept
         update_manifest(out)
         remove_run_files(out, keep=sc.network_path)
         raise
     except RunFailed as exc:
         exc.result.summary.update(extra_summary or {})
+        exc.result.summary["error"] = _named(exc.result.summary.get("error") or str(exc))
         try:
             _write(exc.result, out)
         except OSError as werr:
             raise RunFailed(f"{exc}; and the figures could not be written into {out}: {werr}", exc.result) from exc
         raise
+    except Exception as exc:  # the figures of a stopped run could not be gathered (SUMO's outputs cut short)
+        raise failed(f"run stopped, and its figures could not be gathered: {type(exc).__name__}: {exc}") from exc
     result.summary.update(extra_summary or {})
     interrupts.defer()  # the run is done: a signal now lets its figures and report be finished
     try:
@@ -250,6 +255,13 @@ def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: 
     except OSError as exc:
         raise RunFailed(f"the run finished, but its figures could not be written into {out}: {exc}", result) from exc
     return result
+
+
+def _named(error: str) -> str:
+    """``error``, with the signal that stopped the run where the error does not name it (a library
+    stopped mid-call may raise an error of its own)."""
+    sig = interrupts.received()
+    return error if sig is None or sig in error else f"stopped by {sig}: {error}"
 
 
 def _write(result: RunResult, out: Path) -> None:

@@ -498,3 +498,23 @@ def test_a_disk_that_fills_at_any_write_still_ends_with_a_summary_that_says_fail
     assert code == 1
     assert "No space left on device" in capsys.readouterr().err
     assert s["status"] == "failed" and "No space left" in s["error"]
+
+
+@pytest.mark.parametrize("stop", [KeyboardInterrupt("interrupted (SIGINT)"), RuntimeError("a library's own error")])
+def test_a_run_stopped_while_its_demand_is_built_says_failed(tmp_path, monkeypatch, stop):
+    """Stopped after the run directory says "running" but before the demand exists (the layout
+    read, the arrivals not yet drawn): the summary says failed and why, never "running"."""
+    from nrtraffic import engine as engine_mod
+    from nrtraffic import scenario
+    from nrtraffic.engine import RunFailed
+    from runners.single import run_scenario
+
+    def broken(*args, **kwargs):
+        raise stop
+
+    monkeypatch.setattr(engine_mod, "Demand", broken)
+    out = tmp_path / "run"
+    with pytest.raises(RunFailed):
+        run_scenario(scenario.load(CROSS4), out, duration_s=60)
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "failed" and str(stop) in s["error"]
