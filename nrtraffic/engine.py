@@ -40,8 +40,8 @@ from nrtraffic.junction.admission import Admission
 from nrtraffic.lifecycle import State
 from nrtraffic.measure import LEADER_LOOKAHEAD_M
 from nrtraffic.planning.coordinator import Coordinator
-from nrtraffic.results import (RunFacts, RunResult, TrajectoryWriter, approach_table, parse_queues, read_tripinfo,
-                               run_summary, vehicle_table)
+from nrtraffic.results import (RunFacts, RunResult, TrajectoryWriter, approach_table, movements_of, parse_queues,
+                               read_tripinfo, round_frame, round_summary, run_summary, vehicle_table)
 from nrtraffic.state import RunState
 from nrtraffic.sumo.adapter import SumoSession, VehicleType, handover_tau_s, sumo_version, write_sumocfg
 from nrtraffic.sumo.network import NetworkError
@@ -434,7 +434,8 @@ class Engine:
             barriers=(self.sc.barriers.longitudinal, self.sc.barriers.lateral),
             collisions_sumo=self.collisions_sumo, collisions_geometric=self.collisions_geometric,
             collision_log=self.collision_log, zone_cuts=self.zone_cuts, junctions=junctions,
-            waiting_to_enter=[t for _, t, _ in self.admission.scheduled.values()] if self.admission else [],
+            zone_crossing_s=self._zone_crossing_s(),
+            waiting_to_enter=self._waiting_to_enter(),
             vehicles_spawned=sum(r.status != "waiting" for r in records.values()),
             drivers={r.vehicle_id: r.driver for r in records.values()},
             wall_breakdown=self.wall_breakdown, versions=(__version__, sumo_version()))
@@ -442,10 +443,33 @@ class Engine:
             if final else "running"
         demand = self.demand.demand_veh_h if self.demand is not None else None  # (None: stopped while it was built)
         summary = run_summary(facts, veh, trips, demand, status, error)
-        extra = {}
+        # every table from the same unrounded records, then each figure to its resolution
+        extra = {"movements": round_frame(movements_of(veh, summary, self.workdir / "movements.json"))}
         if final and self.sc.controlled_junctions() and self.demand is not None:
             queues = parse_queues(self.workdir / "queues.xml")
-            extra["approaches"] = approach_table(veh, queues, self.layout.approaches, self.demand.demand_veh_h,
-                                                 summary["measure_from_s"], summary["measure_to_s"])
+            extra["approaches"] = round_frame(approach_table(veh, queues, self.layout.approaches,
+                                                             self.demand.demand_veh_h, summary["measure_from_s"],
+                                                             summary["measure_to_s"]))
             extra["queues"] = queues
-        return RunResult(summary, veh, self.workdir, extra)
+        return RunResult(round_summary(summary), round_frame(veh), self.workdir, extra)
+
+    def _waiting_to_enter(self) -> list[tuple[float, str]]:
+        """(desired departure [s], junction of its first crossing) of each vehicle of the demand
+        that SUMO has not inserted yet."""
+        if self.admission is None or self.st is None:
+            return []
+        where = self.layout.movement_junction
+        return [(t, where.get(self.st.itineraries.get(trip, (trip,))[0], ""))
+                for trip, t, _ in self.admission.scheduled.values()]
+
+    def _zone_crossing_s(self) -> float:
+        """The time a car needs to cross the longest control zone of the run at the speed limit
+        (the fastest movement's lowest limit) [s]; 0 before the paths are known."""
+        st, out = self.st, 0.0
+        if st is None or self.layout is None:
+            return out
+        for j in self.layout.junctions.values():
+            v = max((st.paths[m].v_limit for m in j.movements if m in st.paths), default=math.inf)
+            if 0 < v < math.inf:
+                out = max(out, j.control_zone_m / v)
+        return out

@@ -19,6 +19,29 @@ def free_flow_delay(t_enter, t_exit, distance_m, v_enter):
     return (np.asarray(t_exit) - np.asarray(t_enter)) - np.asarray(distance_m) / np.asarray(v_enter)
 
 
+def free_flow_time(distance_m, v_free):
+    """Time [s] to cover ``distance_m`` [m] at the free-flow speed ``v_free`` [m/s]."""
+    return np.asarray(distance_m) / np.asarray(v_free)
+
+
+def left_in_window(vehicles, t_from: float, t_to: float):
+    """Which rows of ``vehicles.csv`` count in a throughput: the crossings whose vehicle left the
+    merging zone during ``[t_from, t_to]`` [s] (boolean Series)."""
+    return vehicles["t_exit_s"].between(t_from, t_to)
+
+
+def completed_in_window(vehicles, t_from: float, t_to: float):
+    """Which rows count in the delay figures: the crossings that entered the control zone during
+    ``[t_from, t_to]`` [s] and left the merging zone (boolean Series)."""
+    return vehicles["t_arrive_s"].between(t_from, t_to) & vehicles["t_exit_s"].notna()
+
+
+def flow_veh_h(count: int, t_from: float, t_to: float):
+    """``count`` vehicles over ``[t_from, t_to]`` [s] as a flow [veh/h]; None for an empty window."""
+    hours = max(t_to - t_from, 0.0) / 3600.0
+    return count / hours if hours > 0 else None
+
+
 def percentile_or_none(values, q):
     vals = np.asarray([v for v in values if v is not None and np.isfinite(v)], dtype=float)
     return float(np.percentile(vals, q)) if vals.size else None
@@ -69,23 +92,26 @@ MOVEMENT_COLUMNS = ["approach", "movement", "vehicles", "throughput_veh_h", "mea
 
 
 def movement_table(vehicles, t_from: float, t_to: float, signalised: bool, movements=()):
-    """One row per (approach, movement) of a run's ``vehicles.csv``: the vehicles that entered the
-    control zone in ``[t_from, t_to]`` and left the merging zone, their throughput [veh/h over the
-    window], mean and 95th-percentile delay [s], the HCM letter of the mean (``los_thresholds``
-    says which table), stops per vehicle (SUMO's waitingCount over the trip) and fuel [mL].
-    ``movements``: every ``(approach, movement)`` of the junction, so that one no vehicle took has
-    its row too."""
+    """One row per (approach, movement) of a run's ``vehicles.csv`` over the window
+    ``[t_from, t_to]`` [s]: its throughput [veh/h] (the vehicles that left the merging zone in the
+    window, :func:`left_in_window`: the rows add up to the junctions' and the run's throughput),
+    and, of the vehicles that entered the control zone in the window and left the merging zone
+    (:func:`completed_in_window`, ``vehicles``), the mean and 95th-percentile delay [s], the HCM
+    letter of the mean (``los_thresholds`` says which table), stops per vehicle (SUMO's
+    waitingCount over the trip) and fuel [mL]. ``movements``: every ``(approach, movement)`` of the
+    junction, so that one no vehicle took has its row too."""
     import pandas as pd
 
-    v = vehicles[vehicles["t_arrive_s"].between(t_from, t_to) & vehicles["t_exit_s"].notna()]
-    hours = max(t_to - t_from, 0.0) / 3600.0
+    v = vehicles[completed_in_window(vehicles, t_from, t_to)]
+    out = vehicles[left_in_window(vehicles, t_from, t_to)]
     rows = []
     keys = set(map(tuple, vehicles[["approach", "movement"]].drop_duplicates().itertuples(index=False)))
     for appr, mv in sorted(keys | set(movements)):
         g = v[(v["approach"] == appr) & (v["movement"] == mv)]
+        n_out = int(((out["approach"] == appr) & (out["movement"] == mv)).sum())
         mean = mean_or_none(g["delay_s"])
         rows.append({"approach": appr, "movement": mv, "vehicles": len(g),
-                     "throughput_veh_h": len(g) / hours if hours > 0 else None, "mean_delay_s": mean,
+                     "throughput_veh_h": flow_veh_h(n_out, t_from, t_to), "mean_delay_s": mean,
                      "p95_delay_s": percentile_or_none(g["delay_s"], 95),
                      "los": level_of_service(mean, signalised) if mean is not None else "n/a",
                      "los_thresholds": "signalised" if signalised else "unsignalised",

@@ -3,6 +3,30 @@
 A run directory holds ``summary.json``, ``vehicles.csv``, ``trajectories.parquet``,
 ``scenario.resolved.toml``, ``sumo/`` (the SUMO inputs of the run) and SUMO's ``tripinfo.xml`` and
 ``collisions.xml`` (DESIGN.md, contracts).
+
+Counting, the same in every table (summary.json and its ``junctions``, movements.csv,
+approaches.csv), over the measurement window ``[w0, w1]`` (``outputs.warmup_s`` to
+``outputs.measure_end_s`` or the end of the run) [s]:
+
+- **throughput** (``throughput_veh_h``): crossings whose vehicle left a merging zone during the
+  window, per hour of the window; summary.json's is the sum of its junctions' (on a corridor a
+  vehicle through three junctions counts three times), and a junction's is the sum of its
+  approaches' and of its movements'.
+- **delay figures** (``vehicles``, ``vehicles_completed``, ``mean_delay_s``, ...): the crossings
+  (trips, in summary.json) that entered the control zone during the window and left the merging
+  zone before the end of the run.
+- **served share** (``served_share``): at a junction, of the vehicles demanded of it in the window,
+  the share it served. Demanded: the crossings that entered its control zone during the window
+  early enough to leave its merging zone before the end of the run at their free-flow speed
+  (``t_exit_free_s``), and the vehicles due to depart towards it in the window that SUMO could
+  not insert by the end of the run; served: those of them that left its merging zone. At most 1 by
+  construction; summary.json's is over all junctions (served crossings / demanded crossings).
+
+Resolutions (:data:`RESOLUTIONS`, by the unit suffix of a figure's name): times and durations
+0.001 s, lengths and positions 0.001 m, speeds 0.001 m/s, accelerations 0.001 m/s^2, flows
+0.1 veh/h, shares and fractions 0.0001, queues 0.001 veh, fuel 0.001 mL, energy 0.001 m^2/s^3,
+barrier values 0.000001, any other number 0.000001; counts are whole numbers. No value is written
+with more digits than its resolution, so float noise (a delay of -2.5e-14 s) is written as 0.
 """
 
 from __future__ import annotations
@@ -17,7 +41,7 @@ import pandas as pd
 
 VEHICLE_COLUMNS = [
     "vehicle_id", "junction", "leg", "legs", "approach", "driver", "movement", "lane", "depart_delay_s", "t_arrive_s", "t_enter_s", "v_enter_mps", "t_merge_planned_s", "t_merge_actual_s",
-    "t_exit_s", "delay_s", "max_tracking_error_m", "steady_tracking_error_m", "transient_tracking_error_m",
+    "t_exit_s", "t_exit_free_s", "delay_s", "max_tracking_error_m", "steady_tracking_error_m", "transient_tracking_error_m",
     "max_lateral_dev_m",
     "min_bumper_gap_m", "energy_u2", "fuel_ml", "predecessor", "relation", "binding", "profile", "plan_rear_end_intrusion_m",
     "v_merge_planned_mps",
@@ -142,6 +166,61 @@ def _stream_batches(path: Path):
                 return
 
 
+# decimals a figure is written with, by the unit suffix of its name (the first that matches); a
+# figure of no listed unit takes that of the key it is under (summary.json's nested tables), and
+# at the top DEFAULT_DECIMALS
+RESOLUTIONS = (
+    ("_veh_h", 1),  # flows [veh/h]: 0.1
+    ("share", 4), ("_frac", 4),  # shares and fractions: 0.0001
+    ("_mps2", 3), ("_mps", 3),  # accelerations [m/s^2], speeds [m/s]: 0.001
+    ("_s", 3), ("_m", 3),  # times and durations [s], lengths and positions [m]: 0.001
+    ("_veh", 3), ("_ml", 3), ("_u2", 3), ("_per_vehicle", 3), ("_factor", 3),  # queues, fuel, energy, means
+)
+EXACT_DECIMALS = {"t": 3}  # collision_events' time [s]
+DEFAULT_DECIMALS = 6  # anything else (barrier values, counts written as floats)
+
+
+def decimals_of(name: str, inherited: int = DEFAULT_DECIMALS) -> int:
+    """The decimals a figure named ``name`` is written with (:data:`RESOLUTIONS`)."""
+    if name in EXACT_DECIMALS:
+        return EXACT_DECIMALS[name]
+    for suffix, d in RESOLUTIONS:
+        if name.endswith(suffix):
+            return d
+    return inherited
+
+
+def _round(x: float, d: int) -> float:
+    """``x`` to ``d`` decimals, without a negative zero."""
+    return round(float(x), d) + 0.0
+
+
+def round_summary(o, decimals: int = DEFAULT_DECIMALS):
+    """summary.json's figures rounded to their resolutions (:data:`RESOLUTIONS`), recursively;
+    strings, whole numbers, booleans and None unchanged."""
+    if isinstance(o, dict):
+        return {k: round_summary(v, decimals_of(str(k), decimals)) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [round_summary(v, decimals) for v in o]
+    if isinstance(o, (bool, np.bool_)):
+        return bool(o)
+    if isinstance(o, (float, np.floating)):
+        return _round(o, decimals) if math.isfinite(o) else o
+    return o
+
+
+def round_frame(df: pd.DataFrame) -> pd.DataFrame:
+    """A table's float columns rounded to their resolutions (:data:`RESOLUTIONS`, by column name)."""
+    df = df.copy()
+    for c in df.columns:
+        if pd.api.types.is_float_dtype(df[c]):
+            df[c] = df[c].round(decimals_of(str(c))) + 0.0
+        elif df[c].dtype == object and len(df[c]) and df[c].map(lambda v: isinstance(v, float)).any():
+            d = decimals_of(str(c))
+            df[c] = df[c].map(lambda v: _round(v, d) if isinstance(v, float) and math.isfinite(v) else v)
+    return df
+
+
 def _json_default(o):
     if isinstance(o, (np.floating,)):
         return None if not np.isfinite(o) else float(o)
@@ -182,7 +261,7 @@ def write_summary(path: Path, summary: dict) -> None:
     """summary.json, whole or not at all: written under a temporary name and renamed, padded with
     blanks to :data:`SUMMARY_RESERVE_BYTES`. Where that fails (a full disk), it is written over the
     earlier summary in place, in the space that one holds, when it fits."""
-    text = json.dumps(_clean(summary), indent=2, default=_json_default) + "\n"
+    text = json.dumps(_clean(round_summary(summary)), indent=2, default=_json_default) + "\n"
     data = text.encode()
     data += b" " * max(SUMMARY_RESERVE_BYTES - len(data) - 1, 0) + (b"\n" if len(data) < SUMMARY_RESERVE_BYTES else b"")
     try:
@@ -225,26 +304,34 @@ def parse_queues(path: Path) -> pd.DataFrame:
 
 
 def write_table(path: Path, table: pd.DataFrame) -> None:
-    """A CSV table, written under a temporary name and renamed when whole."""
+    """A CSV table, its numbers rounded to their resolutions (:func:`round_frame`), written under a
+    temporary name and renamed when whole."""
     tmp = Path(path).with_suffix(".csv.tmp")
-    table.to_csv(tmp, index=False, float_format="%.6g")
+    round_frame(table).to_csv(tmp, index=False)
     tmp.replace(path)
 
 
 def write_movements(path: Path, result: "RunResult") -> pd.DataFrame:
     """``movements.csv``: the per-movement table of a run (:func:`nrtraffic.metrics.movement_table`)
-    over its measurement window."""
-    from nrtraffic.metrics import is_signalised, movement_table
-
-    s = result.summary
-    known = ()
-    doc_path = Path(path).parent / "movements.json"
-    if doc_path.is_file():
-        known = [(m["approach"], m["turn"]) for m in json.loads(doc_path.read_text())["movements"].values()]
-    table = movement_table(result.vehicles, s.get("measure_from_s") or 0.0, s.get("measure_to_s") or 0.0,
-                           bool(s.get("signalised", is_signalised(s.get("control")))), known)
+    over its measurement window, as the run computed it (``result.extra["movements"]``), or
+    computed here from its vehicles."""
+    table = result.extra.get("movements")
+    if table is None:
+        table = movements_of(result.vehicles, result.summary, Path(path).parent / "movements.json")
     write_table(path, table)
     return table
+
+
+def movements_of(vehicles: pd.DataFrame, s: dict, doc_path: Path) -> pd.DataFrame:
+    """The per-movement table of a run's ``vehicles`` over the window of its summary ``s``, with a
+    row for every movement of ``movements.json`` (``doc_path``) where there is one."""
+    from nrtraffic.metrics import is_signalised, movement_table
+
+    known = ()
+    if Path(doc_path).is_file():
+        known = [(m["approach"], m["turn"]) for m in json.loads(Path(doc_path).read_text())["movements"].values()]
+    return movement_table(vehicles, s.get("measure_from_s") or 0.0, s.get("measure_to_s") or 0.0,
+                          bool(s.get("signalised", is_signalised(s.get("control")))), known)
 
 
 def read_trajectories(run_dir: Path) -> pd.DataFrame:
@@ -307,19 +394,22 @@ def vehicle_table(records, paths: dict, trips: dict, control: bool) -> pd.DataFr
     SUMO's tripinfo (:func:`read_tripinfo`); ``control``: a controlled run, where the scenario's
     own SUMO-driven vehicles (scripted leaders) are left out."""
     from nrtraffic.control import batch as kb
-    from nrtraffic.metrics import free_flow_delay
+    from nrtraffic.metrics import free_flow_delay, free_flow_time
 
     rows = []
     for rec in sorted(records, key=lambda r: (r.t_depart, r.leg)):
         if rec.status == "waiting" or (control and not rec.controlled and rec.driver != "human"):
             continue  # (a SUMO-driven vehicle of the scenario's own, e.g. a scripted leader)
         ap = paths.get(rec.movement)
-        delay = math.nan
+        delay = t_free = math.nan
+        if math.isnan(rec.t_arrive):  # SUMO-driven: t_enter is when it crossed the entry
+            t_from, s_from = rec.t_enter, rec.s_enter
+        else:  # controlled: from crossing the entry, before any wait for its batch or a merge time
+            t_from, s_from = rec.t_arrive, rec.s_arrive
+        if ap is not None and not math.isnan(t_from):
+            # when it would have left the merging zone at its free-flow speed [s]
+            t_free = float(t_from + free_flow_time(ap.s_exit - s_from, rec.v_free))
         if ap is not None and not math.isnan(rec.t_exit):
-            if math.isnan(rec.t_arrive):  # SUMO-driven: t_enter is when it crossed the entry
-                t_from, s_from = rec.t_enter, rec.s_enter
-            else:  # controlled: from crossing the entry, before any wait for its batch or a merge time
-                t_from, s_from = rec.t_arrive, rec.s_arrive
             # plus the wait to enter the network at all, so that a control whose queues back up to
             # the insertion point is not credited with the demand it kept out
             delay = float(free_flow_delay(t_from, rec.t_exit, ap.s_exit - s_from, rec.v_free)) + rec.depart_delay
@@ -341,7 +431,8 @@ def vehicle_table(records, paths: dict, trips: dict, control: bool) -> pd.DataFr
             "t_arrive_s": rec.t_enter if math.isnan(rec.t_arrive) else rec.t_arrive,
             "depart_delay_s": rec.depart_delay,
             "t_enter_s": rec.t_enter, "v_enter_mps": rec.v_enter, "t_merge_planned_s": rec.t_merge_planned,
-            "t_merge_actual_s": rec.t_merge_actual, "t_exit_s": rec.t_exit, "delay_s": delay,
+            "t_merge_actual_s": rec.t_merge_actual, "t_exit_s": rec.t_exit, "t_exit_free_s": t_free,
+            "delay_s": delay,
             "max_tracking_error_m": a[kb.ACC_MAX_ERR], "steady_tracking_error_m": a[kb.ACC_MAX_ERR_STEADY],
             "transient_tracking_error_m": a[kb.ACC_MAX_ERR_TRANSIENT], "max_lateral_dev_m": a[kb.ACC_MAX_LAT],
             "min_bumper_gap_m": fin(rec.min_gap), "energy_u2": a[kb.ACC_ENERGY], "fuel_ml": a[kb.ACC_FUEL],
@@ -406,24 +497,44 @@ def corridor_table(veh: pd.DataFrame, trips: dict, n_junctions: int, w0: float, 
     return out
 
 
-def junction_table(veh: pd.DataFrame, junctions: dict, signalised: bool, w0: float, w1: float) -> dict:
-    """summary.json ``junctions``: per controlled junction, the crossings that entered its
-    control zone in the window and left its merging zone: how many, their throughput [veh/h],
-    mean and 95th-percentile delay [s] and the HCM letter (by the signalised thresholds where
-    ``signalised``), and its zones."""
+def junction_table(veh: pd.DataFrame, junctions: dict, signalised: bool, w0: float, w1: float,
+                   t_end: float, waiting: list) -> dict:
+    """summary.json ``junctions``: per controlled junction over the window ``[w0, w1]`` [s] (the
+    run ended at ``t_end`` [s]): its throughput [veh/h] (crossings that left its merging zone in
+    the window, :func:`~nrtraffic.metrics.left_in_window`); the crossings that entered its control
+    zone in the window and left its merging zone (``vehicles``), their mean and 95th-percentile
+    delay [s] and the HCM letter (by the signalised thresholds where ``signalised``); the vehicles
+    demanded of it and served, and their ratio ``served_share`` (module docstring; ``waiting``:
+    ``(desired departure [s], junction)`` of the vehicles SUMO could not insert); and its zones."""
     from nrtraffic import metrics
 
     out = {}
-    hours = max(w1 - w0, 0.0) / 3600.0
     for jid, j in junctions.items():
-        g = veh[(veh["junction"] == jid) & veh["t_arrive_s"].between(w0, w1) & veh["t_exit_s"].notna()]
+        at = veh[veh["junction"] == jid]
+        g = at[metrics.completed_in_window(at, w0, w1)]
+        n_left = int(metrics.left_in_window(at, w0, w1).sum())
+        demanded, served = demand_served(at, [t for t, jj in waiting if jj == jid], w0, w1, t_end)
         mean = metrics.mean_or_none(g["delay_s"])
-        out[jid] = {"vehicles": int(len(g)), "throughput_veh_h": len(g) / hours if hours > 0 else None,
+        out[jid] = {"vehicles": int(len(g)), "throughput_veh_h": metrics.flow_veh_h(n_left, w0, w1),
+                    "vehicles_demanded": demanded, "vehicles_served": served,
+                    "served_share": served / demanded if demanded else None,
                     "mean_delay_s": mean, "p95_delay_s": metrics.percentile_or_none(g["delay_s"], 95),
                     "los": (metrics.level_of_service(mean, signalised)
                             if mean is not None else None),
                     "control_zone_m": j.control_zone_m, "merging_zone_m": j.merging_zone_m}
     return out
+
+
+def demand_served(at: pd.DataFrame, waiting: list, w0: float, w1: float, t_end: float) -> tuple[int, int]:
+    """At one junction (``at``: its rows of vehicles.csv; ``waiting``: desired departure times [s]
+    of the vehicles bound for it that SUMO could not insert by ``t_end``), the vehicles demanded
+    of it in the window ``[w0, w1]`` [s] and how many of them it served: demanded, the crossings
+    that entered its control zone in the window and would have left its merging zone by the end of
+    the run ``t_end`` at their free-flow speed, and the vehicles not inserted whose desired
+    departure is in the window; served, those crossings that left its merging zone."""
+    due = at["t_arrive_s"].between(w0, w1) & (at["t_exit_free_s"] <= t_end)
+    served = int((due & at["t_exit_s"].notna()).sum())
+    return int(due.sum()) + sum(w0 <= t <= w1 for t in waiting), served
 
 
 def driver_figures(adm: pd.DataFrame, done: pd.DataFrame, kind: dict[str, str], pairs: set) -> dict:
@@ -449,10 +560,13 @@ def driver_figures(adm: pd.DataFrame, done: pd.DataFrame, kind: dict[str, str], 
 def approach_table(vehicles: pd.DataFrame, queues: pd.DataFrame, approaches: list[str], demand_veh_h,
                    t_from: float, t_to: float) -> pd.DataFrame:
     """``approaches.csv``: per approach, its demand (``demand_veh_h(t_from, t_to, approach)``) and
-    served flow over the window [veh/h] (vehicles of the approach leaving the merging zone in it),
-    and its queue from SUMO's detectors (``queues``, :func:`parse_queues`) over the detector
-    periods inside the window: mean and maximum, in vehicles and metres."""
-    cols = ["approach", "demand_veh_h", "served_veh_h", "mean_queue_veh", "max_queue_veh", "mean_queue_m",
+    throughput over the window [veh/h] (vehicles of the approach leaving the merging zone in it,
+    :func:`~nrtraffic.metrics.left_in_window`: the rows add up to the junctions' throughput), and
+    its queue from SUMO's detectors (``queues``, :func:`parse_queues`) over the detector periods
+    inside the window: mean and maximum, in vehicles and metres."""
+    from nrtraffic import metrics
+
+    cols = ["approach", "demand_veh_h", "throughput_veh_h", "mean_queue_veh", "max_queue_veh", "mean_queue_m",
             "max_queue_m"]
     q = queues
     if len(q):
@@ -461,10 +575,11 @@ def approach_table(vehicles: pd.DataFrame, queues: pd.DataFrame, approaches: lis
     rows = []
     for appr in approaches:
         demand = demand_veh_h(t_from, t_to, appr) if hours > 0 else math.nan
-        served = vehicles[(vehicles["approach"] == appr) & vehicles["t_exit_s"].between(t_from, t_to)]
+        n_left = int(((vehicles["approach"] == appr) & metrics.left_in_window(vehicles, t_from, t_to)).sum())
         g = q[q["approach"] == appr] if len(q) else q
+        flow = metrics.flow_veh_h(n_left, t_from, t_to)
         rows.append({"approach": appr, "demand_veh_h": demand,
-                     "served_veh_h": len(served) / hours if hours > 0 else math.nan,
+                     "throughput_veh_h": math.nan if flow is None else flow,
                      "mean_queue_veh": g["mean_queue_veh"].mean() if len(g) else math.nan,
                      "max_queue_veh": g["max_queue_veh"].max() if len(g) else math.nan,
                      "mean_queue_m": g["mean_queue_m"].mean() if len(g) else math.nan,
@@ -492,7 +607,8 @@ class RunFacts:
     collision_log: list
     zone_cuts: dict
     junctions: dict  # id -> Junction
-    waiting_to_enter: list  # desired departure times [s] of the vehicles SUMO could not insert yet
+    zone_crossing_s: float  # the time a car needs to cross the longest control zone at the speed limit [s]
+    waiting_to_enter: list  # (desired departure [s], junction) of the vehicles SUMO could not insert yet
     vehicles_spawned: int  # vehicles SUMO inserted
     drivers: dict  # vehicle -> "automated" or "human"
     wall_breakdown: dict
@@ -503,8 +619,9 @@ def run_summary(f: RunFacts, veh: pd.DataFrame, trips: dict, demand_veh_h, statu
                 error: BaseException | None) -> dict:
     """summary.json of a run from its vehicle table ``veh`` (:func:`vehicle_table`), SUMO's
     ``trips`` and the facts ``f``. ``demand_veh_h(begin, end)``: the demand of a window [veh/h]
-    (None where it cannot be known). The window: vehicles that entered the control zone between
-    ``warmup_s`` and ``measure_end_s`` (the end of the run where it is not set)."""
+    (None where it cannot be known). The window: ``warmup_s`` to ``measure_end_s`` (the end of the
+    run where it is not set); throughput, delay figures and served share count in it as the module
+    docstring says. Unrounded: :func:`round_summary` gives the figures as written."""
     from nrtraffic import metrics
     from nrtraffic.planning.coordinator import REAR_END_TOL_M
 
@@ -522,21 +639,38 @@ def run_summary(f: RunFacts, veh: pd.DataFrame, trips: dict, demand_veh_h, statu
     adm = adm_all[adm_all["driver"] == "automated"]
     steps = adm["plant_steps"].sum()
     window = max(w1 - w0, 0.0)
-    exits = int(trip["t_exit_s"].between(w0, w1).sum())
-    throughput = exits / window * 3600.0 if window > 0 else None
+    due_at = [(t, j) for t, j in f.waiting_to_enter if t <= sim_t]  # due to depart, but SUMO could not insert it
+    due = [t for t, _ in due_at]
+    junctions = junction_table(veh, f.junctions, f.signalised, w0, w1, sim_t, due_at)
+    # throughput: the crossings that left a merging zone in the window, the sum of the junctions'
+    left = metrics.left_in_window(veh, w0, w1)
+    if f.junctions:
+        left &= veh["junction"].isin(list(f.junctions))
+    exits = int(left.sum())
+    throughput = metrics.flow_veh_h(exits, w0, w1)
     demand = demand_veh_h(w0, w1) if window > 0 and demand_veh_h is not None else 0.0
-    due = [t for t in f.waiting_to_enter if t <= sim_t]  # due to depart, but SUMO could not insert it
     mean_delay = metrics.mean_or_none(done["delay_s"])
     controlled = f.control
-    served = throughput / demand if demand and throughput is not None else None
+    if f.junctions:
+        demanded = sum(j["vehicles_demanded"] for j in junctions.values())
+        n_served = sum(j["vehicles_served"] for j in junctions.values())
+    else:
+        demanded, n_served = demand_served(veh, due, w0, w1, sim_t)
+    served = n_served / demanded if demanded else None
     warnings = []
+    if 0 < window < f.zone_crossing_s:
+        warnings.append(f"the measurement window ({w0:g}-{w1:g} s, {window:g} s) is shorter than the "
+                        f"{f.zone_crossing_s:.0f} s a car needs to cross the control zone at the speed limit: few "
+                        "vehicles both enter and leave inside it; lengthen --duration (scenario.duration_s) or "
+                        "outputs.measure_end_s, or lower outputs.warmup_s")
     if f.collisions_sumo or f.collisions_geometric:
         warnings.append(f"collisions: {len(f.collisions_sumo)} in SUMO's check, {len(f.collisions_geometric)} in the "
                         f"own check (collision_events)")
     if window > 0 and not exits:
         warnings.append("no vehicle left a merging zone in the measurement window")
     if served is not None and served < 0.9:
-        warnings.append(f"served {100 * served:.1f} % of the demand in the window (below 90 %)")
+        warnings.append(f"served {100 * served:.1f} % of the vehicles demanded in the window (below 90 %; "
+                        "served_share, per junction in junctions)")
     if due:
         warnings.append(f"{len(due)} vehicles due to depart could not enter the network yet (mean wait "
                         f"{np.mean([sim_t - t for t in due]):.0f} s, not in the delay)")
@@ -564,9 +698,11 @@ def run_summary(f: RunFacts, veh: pd.DataFrame, trips: dict, demand_veh_h, statu
         "vehicles_completed": int(len(done)),
         "throughput_veh_h": throughput,
         "demand_veh_h": demand or None,
+        "vehicles_demanded": demanded,
+        "vehicles_served": n_served,
         "served_share": served,
-        "control_zones_cut_m": {k: round(v, 3) for k, v in f.zone_cuts.items()},
-        "junctions": junction_table(veh, f.junctions, f.signalised, w0, w1),
+        "control_zones_cut_m": dict(f.zone_cuts),
+        "junctions": junctions,
         "corridor": corridor_table(veh, trips, len(f.junctions), w0, w1),
         "vehicles_waiting_to_enter": len(due),
         "mean_wait_to_enter_s": float(np.mean([sim_t - t for t in due])) if due else None,

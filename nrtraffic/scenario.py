@@ -428,7 +428,9 @@ class Outputs:
             raise ScenarioError("outputs.warmup_s and outputs.measure_end_s must be >= 0")
         if self.measure_end_s and self.measure_end_s <= self.warmup_s:
             raise ScenarioError(f"outputs.measure_end_s ({self.measure_end_s:g} s) must be after outputs.warmup_s "
-                                f"({self.warmup_s:g} s), or 0 for the end of the run")
+                                f"({self.warmup_s:g} s): the measurement window would be empty or inverted; raise "
+                                "outputs.measure_end_s, lower outputs.warmup_s, or set outputs.measure_end_s = 0 "
+                                "for the end of the run (--duration)")
 
 
 @dataclass(frozen=True)

@@ -34,6 +34,7 @@ def check_demand(sc: scenario_mod.Scenario, seed: int | None, duration_s: float 
 
     from nrtraffic.demand import Demand
 
+    check_window(sc, duration_s)
     try:
         demand = Demand.of(sc, seed, duration_s)
         departures = demand.departures()
@@ -47,6 +48,26 @@ def check_demand(sc: scenario_mod.Scenario, seed: int | None, duration_s: float 
         raise scenario_mod.ScenarioError(f"demand: a route file is not valid XML: {exc}") from None
     except (ValueError, KeyError, ZeroDivisionError, OverflowError) as exc:
         raise scenario_mod.ScenarioError(f"demand: {exc}") from None
+
+
+def check_window(sc: scenario_mod.Scenario, duration_s: float | None) -> None:
+    """The measurement window (``outputs.warmup_s`` to ``outputs.measure_end_s``, or to the end of
+    the run) measures something: one that starts at or after the end of the run is a
+    :class:`~nrtraffic.scenario.ScenarioError` (exit 2) naming the keys and the fix. A run until
+    every vehicle has left (duration 0) has no known end, and is not checked."""
+    o = sc.outputs
+    d = float(sc.general.duration_s if duration_s is None else duration_s)
+    if d <= 0:
+        return
+    given = "--duration" if duration_s is not None else "scenario.duration_s"
+    if o.warmup_s >= d:
+        end = (f"outputs.measure_end_s = {o.measure_end_s:g} s, cut there" if o.measure_end_s
+               else "outputs.measure_end_s = 0: the end of the run")
+        raise scenario_mod.ScenarioError(
+            f"the measurement window is {'empty' if o.warmup_s == d else 'inverted'}: it starts at outputs.warmup_s = "
+            f"{o.warmup_s:g} s, {'when' if o.warmup_s == d else 'after'} the run ends at {d:g} s ({given}; {end}), "
+            f"so it would measure nothing. Lengthen the run ({given}, scenario.duration_s) past {o.warmup_s:g} s, "
+            "or lower outputs.warmup_s (e.g. --set outputs.warmup_s=0)")
 
 
 def _check_depart_speeds(sc: scenario_mod.Scenario, demand, departures) -> None:
