@@ -178,10 +178,16 @@ RESOLUTIONS = (
 )
 EXACT_DECIMALS = {"t": 3}  # collision_events' time [s]
 DEFAULT_DECIMALS = 6  # anything else (barrier values, counts written as floats)
+AGGREGATES = ("_mean", "_sd", "_ci95")  # a sweep's statistics of a figure
 
 
 def decimals_of(name: str, inherited: int = DEFAULT_DECIMALS) -> int:
-    """The decimals a figure named ``name`` is written with (:data:`RESOLUTIONS`)."""
+    """The decimals a figure named ``name`` is written with (:data:`RESOLUTIONS`; a sweep's
+    ``<figure>_mean``, ``_sd`` and ``_ci95`` those of the figure)."""
+    for agg in AGGREGATES:
+        if name.endswith(agg):
+            name = name[:-len(agg)]
+            break
     if name in EXACT_DECIMALS:
         return EXACT_DECIMALS[name]
     for suffix, d in RESOLUTIONS:

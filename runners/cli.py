@@ -392,8 +392,13 @@ def _print_summary(s: dict, out: Path) -> None:
         m = pd.read_csv(table)
         if len(m):
             thresholds = m["los_thresholds"].iloc[0]
-            m = m.drop(columns=["los_thresholds"]).round({"throughput_veh_h": 0, "mean_delay_s": 1, "p95_delay_s": 1,
-                                                          "stops_per_vehicle": 2, "fuel_ml_per_vehicle": 1})
+            m = m.drop(columns=["los_thresholds"])
+            # one format per column, "-" where there is no value
+            formats = {"throughput_veh_h": "{:.0f}", "mean_delay_s": "{:.1f}", "p95_delay_s": "{:.1f}",
+                       "stops_per_vehicle": "{:.2f}", "fuel_ml_per_vehicle": "{:.1f}"}
+            for col, fmt in formats.items():
+                if col in m:
+                    m[col] = [fmt.format(v) if pd.notna(v) else "-" for v in m[col]]
             print(f"\nper movement (movements.csv; LOS by the {thresholds} HCM thresholds):")
             print(m.to_string(index=False, na_rep="-"))
     for w in s.get("warnings") or ():

@@ -393,9 +393,11 @@ def summarize(df: pd.DataFrame) -> pd.DataFrame:
 def write_tables(df: pd.DataFrame, out: Path, figures=sweep_figures) -> None:
     """sweep.csv, sweep_summary.csv, sweep.md (the study table and the safety table), the figures
     that ``figures(df, summary, out)`` draws and report.html with all of them."""
-    df.to_csv(out / "sweep.csv", index=False)
+    from nrtraffic.results import round_frame
+
+    round_frame(df).to_csv(out / "sweep.csv", index=False)
     summ = summarize(df)
-    summ.to_csv(out / "sweep_summary.csv", index=False)
+    round_frame(summ).to_csv(out / "sweep_summary.csv", index=False)
     tables = [table(summ, df)]
     snote, stab = safety_table(df)
     if len(stab):
@@ -436,13 +438,15 @@ def table(summ: pd.DataFrame, df: pd.DataFrame) -> tuple[str, pd.DataFrame]:
     waiting = "vehicles_waiting_to_enter_mean" in summ
     window = ""
     if "measure_from_s" in df and df["measure_from_s"].notna().any():
-        window = (f" Figures count the vehicles that entered the control zone from "
-                  f"{df['measure_from_s'].min():g} s to the end of the run (warm-up excluded).")
+        window = (f" The window is {df['measure_from_s'].min():g} s to the end of the run (warm-up excluded): "
+                  "throughput counts the vehicles leaving a merging zone in it, per hour (on a corridor, summed "
+                  "over its junctions); delay, the vehicles that entered the control zone in it.")
     note = (f"Mean over seeds {seeds[0]}-{seeds[-1]} ({len(seeds)} seeds) with the 95 % confidence half-width; "
              "collisions are totals over the runs. Delay includes the wait to enter the network (SUMO's "
              "departDelay) where the queue backed up to the insertion point. LOS: HCM level of service of the "
              "mean delay (signalised thresholds for the traffic light, unsignalised ones for the others)"
-             + ("; served: throughput as a share of the demand" if served else "")
+             + ("; served: of the vehicles demanded of the junctions in the window, the share they served "
+                "(served_share)" if served else "")
              + ("; not in: demand due by the end that SUMO could not yet insert, per run" if waiting else "")
              + "." + window)
     columns = (keys + ["control", "runs (failed)", "throughput [veh/h]"] + (["served"] if served else [])
