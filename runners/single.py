@@ -60,13 +60,14 @@ def check_window(sc: scenario_mod.Scenario, duration_s: float | None) -> None:
     if d <= 0:
         return
     given = "--duration" if duration_s is not None else "scenario.duration_s"
+    lengthen = "--duration, or scenario.duration_s" if duration_s is not None else "scenario.duration_s, or --duration"
     if o.warmup_s >= d:
         end = (f"outputs.measure_end_s = {o.measure_end_s:g} s, cut there" if o.measure_end_s
                else "outputs.measure_end_s = 0: the end of the run")
         raise scenario_mod.ScenarioError(
             f"the measurement window is {'empty' if o.warmup_s == d else 'inverted'}: it starts at outputs.warmup_s = "
             f"{o.warmup_s:g} s, {'when' if o.warmup_s == d else 'after'} the run ends at {d:g} s ({given}; {end}), "
-            f"so it would measure nothing. Lengthen the run ({given}, scenario.duration_s) past {o.warmup_s:g} s, "
+            f"so it would measure nothing. Lengthen the run ({lengthen}) past {o.warmup_s:g} s, "
             "or lower outputs.warmup_s (e.g. --set outputs.warmup_s=0)")
 
 

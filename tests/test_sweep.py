@@ -12,7 +12,8 @@ from scipy import stats
 
 from runners.cli import main
 
-SHORT = ["--set", "scenario.duration_s=25", "--set", "demand.end_s=12", "--set", "demand.rate_veh_h=600"]
+SHORT = ["--set", "scenario.duration_s=25", "--set", "demand.end_s=12", "--set", "demand.rate_veh_h=600",
+         "--set", "outputs.warmup_s=0"]
 
 
 @pytest.fixture(scope="module")
@@ -146,7 +147,8 @@ def test_a_worker_that_dies_fails_only_the_run_it_was_running(tmp_path, monkeypa
     monkeypatch.setenv(FAULT_KILL_WORKER, "1:nrtraffic")
     out = tmp_path / "out"
     argv = ["sweep", str(SCENARIOS / "cross4"), "--seeds", "1:4", "--workers", "1", "--out", str(out),
-            "--no-progress", "--set", "scenario.duration_s=8", "--set", "demand.rate_veh_h=300"]
+            "--no-progress", "--set", "scenario.duration_s=8", "--set", "demand.rate_veh_h=300",
+            "--set", "outputs.warmup_s=0"]
     assert main(argv) == 1
     df = pd.read_csv(out / "sweep.csv")
     assert len(df) == 4
