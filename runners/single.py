@@ -34,11 +34,11 @@ def check_demand(sc: scenario_mod.Scenario, seed: int | None, duration_s: float 
 
     from nrtraffic.demand import Demand
 
-    check_window(sc, duration_s)
     try:
         demand = Demand.of(sc, seed, duration_s)
         departures = demand.departures()
         _check_depart_speeds(sc, demand, departures)
+        check_window(sc, duration_s)  # (last: what is wrong in the scenario itself is said first)
         return len(departures)
     except scenario_mod.ScenarioError:
         raise

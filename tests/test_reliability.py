@@ -116,7 +116,7 @@ def test_a_full_disk_is_a_clear_failure_and_the_figures_are_kept(tmp_path, monke
 
     monkeypatch.setattr(results.TrajectoryWriter, "flush", full)
     out = tmp_path / "run"
-    code = main(["run", str(CROSS4), "--duration", "30", "--out", str(out), "--no-progress"])
+    code = main(["run", str(CROSS4), "--duration", "30", "--set", "outputs.warmup_s=0", "--out", str(out), "--no-progress"])
     assert code == 1
     assert "No space left on device" in capsys.readouterr().err
     s = json.loads((out / "summary.json").read_text())
@@ -184,7 +184,7 @@ def test_scenario_files_cannot_reach_outside_their_folder(tmp_path, capsys):
     # with --allow-outside a network elsewhere is used
     (d / "scenario.toml").write_text(CROSS4.read_text().replace(
         'network = "net.net.xml"', f'network = "{SCENARIOS / "cross4" / "net.net.xml"}"'))
-    assert main(["run", str(d), "--out", str(tmp_path / "o2"), "--duration", "5", "--allow-outside",
+    assert main(["run", str(d), "--out", str(tmp_path / "o2"), "--duration", "5", "--set", "outputs.warmup_s=0", "--allow-outside",
                  "--no-progress"]) == 0
 
 
@@ -227,7 +227,7 @@ def test_scenarios_that_would_run_wrong_exit_2_naming_the_problem(old, new, extr
 
 def test_out_holding_another_run_is_refused_unless_forced(tmp_path, capsys):
     out = tmp_path / "o"
-    base = ["run", str(CROSS4), "--out", str(out), "--no-progress"]
+    base = ["run", str(CROSS4), "--out", str(out), "--no-progress", "--set", "outputs.warmup_s=0"]
     assert main(base + ["--duration", "4"]) == 0
     assert main(base + ["--duration", "4"]) == 0  # a finished run of the same configuration: run again
     assert main(base + ["--duration", "5"]) == 2
@@ -242,7 +242,7 @@ def test_out_holding_another_run_is_refused_unless_forced(tmp_path, capsys):
     other = tmp_path / "other"
     other.mkdir()
     (other / "x").write_text("")
-    assert main(["baseline", str(CROSS4), "--junction", "priority", "--out", str(other), "--duration", "4"]) == 2
+    assert main(["baseline", str(CROSS4), "--junction", "priority", "--out", str(other), "--duration", "4", "--set", "outputs.warmup_s=0"]) == 2
 
 
 def test_force_never_removes_or_overwrites_the_users_own_files(tmp_path, capsys):
@@ -254,7 +254,7 @@ def test_force_never_removes_or_overwrites_the_users_own_files(tmp_path, capsys)
     (mine / "sumo").mkdir(parents=True)
     (mine / "sumo" / "my_network.net.xml").write_text("<net/>")
     (mine / "notes.txt").write_text("mine")
-    base = ["run", str(CROSS4), "--out", str(mine), "--no-progress", "--force"]
+    base = ["run", str(CROSS4), "--out", str(mine), "--set", "outputs.warmup_s=0", "--no-progress", "--force"]
     assert main(base + ["--duration", "4"]) == 2
     assert "manifest.json" in capsys.readouterr().err
     assert sorted(p.relative_to(mine).as_posix() for p in mine.rglob("*")) == ["notes.txt", "sumo",
@@ -269,7 +269,7 @@ def test_force_never_removes_or_overwrites_the_users_own_files(tmp_path, capsys)
     assert (mine / "sumo" / "my_network.net.xml").read_text() == "<net/>"
     assert (mine / "notes.txt").read_text() == "mine"
     assert json.loads((mine / "summary.json").read_text())["sim_time_s"] == pytest.approx(5.0)
-    assert main(["baseline", str(CROSS4), "--junction", "priority", "--out", str(mine), "--duration", "4",
+    assert main(["baseline", str(CROSS4), "--junction", "priority", "--out", str(mine), "--duration", "4", "--set", "outputs.warmup_s=0",
                  "--force"]) == 0
     assert (mine / "sumo" / "my_network.net.xml").read_text() == "<net/>"
     capsys.readouterr()
@@ -295,7 +295,7 @@ def test_a_junction_the_car_cannot_drive_exits_2_naming_the_movement(edit, messa
     else:
         d = copy_scenario("station_mill", tmp_path / "scen", "merging_zone_m = 46.0", "merging_zone_m = 30.0")
     out = tmp_path / "o"
-    assert main(["run", str(d), "--out", str(out), "--duration", "5", "--no-progress"]) == 2
+    assert main(["run", str(d), "--out", str(out), "--duration", "5", "--set", "outputs.warmup_s=0", "--no-progress"]) == 2
     assert message in capsys.readouterr().err
     assert not out.exists() or not any(out.iterdir())  # nothing was simulated, nothing is left
 
@@ -409,7 +409,7 @@ def test_deeply_nested_toml_is_refused_with_exit_2(value, tmp_path, capsys):
 def test_runs_that_did_not_do_their_job_say_so(tmp_path):
     """A run with no vehicle, and one whose tracker barely tracks (alpha 1e-3 instead of 100: the
     car falls tens of metres behind its plan), finish with a warning in summary.json."""
-    assert main(["run", str(CROSS4), "--duration", "5", "--set", "demand.rate_veh_h=0", "--set",
+    assert main(["run", str(CROSS4), "--duration", "5", "--set", "outputs.warmup_s=0", "--set", "demand.rate_veh_h=0", "--set",
                  "demand.mean_headway_s=0", "--out", str(tmp_path / "none"), "--no-progress"]) == 0
     s = json.loads((tmp_path / "none" / "summary.json").read_text())
     assert s["vehicles_spawned"] == 0 and any("no vehicle" in w for w in s["warnings"])
@@ -454,7 +454,7 @@ def test_a_sweep_too_large_or_with_an_unreachable_scheduler_is_refused_in_one_li
     line with exit 2, not a traceback from Dask."""
     assert main(["sweep", str(CROSS4), "--seeds", "0:30000", "--out", str(tmp_path / "a"), "--no-progress"]) == 2
     assert "30001 runs, more than 20000" in capsys.readouterr().err
-    assert main(["sweep", str(CROSS4), "--seeds", "1:2", "--duration", "5", "--scheduler", "tcp://127.0.0.1:1",
+    assert main(["sweep", str(CROSS4), "--seeds", "1:2", "--duration", "5", "--set", "outputs.warmup_s=0", "--scheduler", "tcp://127.0.0.1:1",
                  "--out", str(tmp_path / "b"), "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert "cannot reach it" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
@@ -490,7 +490,7 @@ def test_a_disk_that_fills_at_any_write_still_ends_with_a_summary_that_says_fail
     import runners.single as single
     monkeypatch.setattr(single, "write_table", full_table)
     out = tmp_path / "run"
-    code = main(["run", str(CROSS4), "--duration", "30", "--out", str(out), "--no-progress"])
+    code = main(["run", str(CROSS4), "--duration", "30", "--set", "outputs.warmup_s=0", "--out", str(out), "--no-progress"])
     s = json.loads((out / "summary.json").read_text())
     if fills_after == 4:  # every table was written, and the last summary went in place: a whole run
         assert code == 0 and s["status"] == "ok" and s["sim_time_s"] == pytest.approx(30.0)
