@@ -84,6 +84,7 @@ def test_a_run_recorded_with_the_host_cpu_target_replays_on_the_generic_one(tmp_
     env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CPU_NAME", "NUMBA_CPU_FEATURES")}
     cmd = [sys.executable, "-m", "runners.cli", "run", str(ROOT / "sumo_scenarios" / "cross4" / "scenario.toml"),
            "--seed", "3", "--duration", "45", "--set", "demand.end_s=15", "--set", "demand.rate_veh_h=600",
+           "--set", "outputs.warmup_s=0",
            "--out", str(run), "--no-progress"]
     subprocess.run(cmd, env=env, cwd=ROOT, check=True, capture_output=True)
     assert os.environ.get("NUMBA_CPU_NAME") == "generic"
