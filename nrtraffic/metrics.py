@@ -7,6 +7,10 @@ Delay: time lost against free flow at the speed the vehicle was sent in with (it
 the entry speed of the demand), ``(t_exit - t_arrive) - (s_exit - s_arrive) / v_free`` [s] from
 crossing the control-zone entry to leaving the merging zone (a wait at the entry counts), plus the
 time SUMO could not insert it because its lane was backed up (SUMO's departDelay).
+Throughput: the vehicles leaving a merging zone in the measurement window, per hour of it
+(:func:`left_in_window`), in every table; the delay figures count the vehicles that entered the
+control zone in the window and left (:func:`completed_in_window`). What the tables hold, and the
+resolutions they are written with: :mod:`nrtraffic.results`.
 """
 
 from __future__ import annotations

@@ -63,7 +63,18 @@ def _close(a, b, rtol: float, atol: float) -> bool:
     return abs(b - a) <= atol + rtol * abs(a)
 
 
+def _unit(name: str) -> float:
+    """One unit of the resolution a table's figure ``name`` is written with
+    (:data:`nrtraffic.results.RESOLUTIONS`): two runs within the tolerance may round a figure on
+    either side of a last digit."""
+    from nrtraffic.results import decimals_of
+
+    return 10.0 ** -decimals_of(name) * (1 + 1e-9)
+
+
 def compare_summaries(rec: dict, new: dict, rtol: float = RTOL, atol: float = ATOL) -> list[Difference]:
+    """Differences between two summaries: a figure differs when it differs by more than
+    ``atol + rtol |recorded|`` plus one unit of its written resolution (:func:`_unit`)."""
     out = []
     for k in sorted(set(rec) | set(new)):
         if k in WALL_CLOCK:
@@ -72,13 +83,15 @@ def compare_summaries(rec: dict, new: dict, rtol: float = RTOL, atol: float = AT
         if isinstance(a, (dict, list)) or isinstance(b, (dict, list)):
             if a != b:
                 out.append(Difference("summary", k, a, b))
-        elif not _close(a, b, rtol, atol):
+        elif not _close(a, b, rtol, atol + (_unit(k) if isinstance(a, float) or isinstance(b, float) else 0.0)):
             out.append(Difference("summary", k, a, b))
     return out
 
 
 def _compare_frames(where: str, rec: pd.DataFrame, new: pd.DataFrame, keys: list[str], rtol: float,
-                    atol: float, limit: int) -> list[Difference]:
+                    atol: float, limit: int, rounded: bool = False) -> list[Difference]:
+    """Differences between two tables by the rows of ``keys``; ``rounded``: a written table, whose
+    figures may also differ by one unit of their resolution (:func:`_unit`)."""
     out = []
     for c in sorted(set(rec.columns) ^ set(new.columns)):
         out.append(Difference(where, f"column {c}", "present" if c in rec else "absent",
@@ -97,7 +110,8 @@ def _compare_frames(where: str, rec: pd.DataFrame, new: pd.DataFrame, keys: list
         x, y = a[c], b[c]
         if pd.api.types.is_numeric_dtype(x) and pd.api.types.is_numeric_dtype(y):
             xv, yv = x.to_numpy(float), y.to_numpy(float)
-            bad = ~(np.isclose(yv, xv, rtol=rtol, atol=atol) | (np.isnan(xv) & np.isnan(yv)))
+            tol = atol + (_unit(c) if rounded else 0.0)
+            bad = ~(np.isclose(yv, xv, rtol=rtol, atol=tol) | (np.isnan(xv) & np.isnan(yv)))
         else:
             both_null = x.isna().to_numpy() & y.isna().to_numpy()
             bad = ~both_null & (x.astype(str) != y.astype(str)).to_numpy()
@@ -123,7 +137,7 @@ def compare_runs(recorded: Path, replayed: Path, rtol: float = RTOL, atol: float
                               json.loads((replayed / "summary.json").read_text()), rtol, atol)
     v_rec = pd.read_csv(recorded / "vehicles.csv", dtype={"vehicle_id": str})
     v_new = pd.read_csv(replayed / "vehicles.csv", dtype={"vehicle_id": str})
-    diffs += _compare_frames("vehicles.csv", v_rec, v_new, ["vehicle_id"], rtol, atol, limit)
+    diffs += _compare_frames("vehicles.csv", v_rec, v_new, ["vehicle_id"], rtol, atol, limit, rounded=True)
     t_rec, t_new = recorded / "trajectories.parquet", replayed / "trajectories.parquet"
     if t_rec.is_file() or t_new.is_file():
         if not (t_rec.is_file() and t_new.is_file()):

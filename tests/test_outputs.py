@@ -178,3 +178,13 @@ def test_a_window_shorter_than_a_crossing_runs_with_a_warning(tmp_path, capsys):
     out2 = tmp_path / "run2"
     assert main(["run", str(CROSS4), "--duration", "100", "--out", str(out2), "--no-progress"]) == 0
     assert not any("shorter than" in w for w in json.loads((out2 / "summary.json").read_text())["warnings"])
+
+
+def test_replay_allows_a_last_digit_of_rounding_and_no_more():
+    """Two runs equal within the replay's tolerance may round a written figure on either side of
+    its last digit (0.001 s for a delay): that is no difference; two digits are."""
+    from runners.replay import compare_summaries
+
+    assert compare_summaries({"mean_delay_s": 1.234}, {"mean_delay_s": 1.235}) == []
+    assert len(compare_summaries({"mean_delay_s": 1.234}, {"mean_delay_s": 1.236})) == 1
+    assert len(compare_summaries({"throughput_veh_h": 960.0}, {"throughput_veh_h": 960.2})) == 1
