@@ -47,6 +47,7 @@ class Demand:
     def __init__(self, sc, layout, seed: int, duration_s: float):
         self.sc, self.layout, self.seed, self.duration = sc, layout, int(seed), float(duration_s)
         self.itineraries: dict[str, tuple[str, ...]] = {}
+        self.file_routes: dict[str, tuple[str, ...]] = {}  # a route file's route -> its edges, whole
         self._departures: list[tuple] | None = None
 
     @classmethod
@@ -81,11 +82,7 @@ class Demand:
         rng = np.random.default_rng(self.seed)
         veh = []
         if d.sumo_routes:
-            from nrtraffic.sumo.demandfile import read_sumo_demand
-
-            end = d.end_s if d.end_s > 0 else (self.duration if self.duration > 0 else math.inf)
-            by_edges = {(r[0], r[1]): name for name, (_, _, r) in self.movement_table.items()}
-            veh = read_sumo_demand(self.sc.base_dir / d.sumo_routes, by_edges, rng, end, d.entry_speed_mps)
+            veh = self._file_departures(rng)
         rates = self.approach_rates() if not d.sumo_routes else {}
         if rates:
             end = d.end_s if d.end_s > 0 else (self.duration if self.duration > 0 else math.inf)
@@ -110,6 +107,32 @@ class Demand:
         share = d.controlled_share
         listed = {v.id for v in self.sc.vehicles}
         return [(*v, "human" if (x >= share and v[0] not in listed) else "auto") for v, x in zip(veh, u)]
+
+    def _file_departures(self, rng) -> list[tuple]:
+        """``demand.sumo_routes``: the file's departures (trips routed by duarouter), each on its
+        whole route, named by the movements it takes joined with "+" (and "#k" where routes with
+        the same crossings differ elsewhere); :attr:`itineraries` and :attr:`file_routes`."""
+        from nrtraffic.sumo.demandfile import read_sumo_demand, routed
+        from nrtraffic.sumo.network import read_net
+
+        d = self.sc.demand
+        end = d.end_s if d.end_s > 0 else (self.duration if self.duration > 0 else math.inf)
+        by_edges = {(r[0], r[1]): name for name, (_, _, r) in self.movement_table.items()}
+        path = routed(self.sc.base_dir / d.sumo_routes, self.sc.network_path)
+        named: dict[tuple, str] = {}
+        veh = []
+        for vid, legs, t, v0, pos, edges in read_sumo_demand(path, by_edges, rng, end, d.entry_speed_mps,
+                                                              net=read_net(self.sc.network_path)):
+            key = named.get((legs, edges))
+            if key is None:
+                key = "+".join(legs)
+                k = sum(1 for other in named if other[0] == legs)
+                key = key if k == 0 else f"{key}#{k}"
+                named[(legs, edges)] = key
+                self.itineraries[key] = legs
+                self.file_routes[key] = edges
+            veh.append((vid, key, t, v0, pos))
+        return veh
 
     def _arrival_times(self, rng, rate: float, end: float) -> np.ndarray:
         """One approach's departure times [s] at ``rate`` [veh/h], scaled by the intervals."""
@@ -150,6 +173,9 @@ class Demand:
             shares[appr] = (names, share / share.sum())
         out = []
         for vid, first, *rest in veh:
+            if first in self.file_routes:  # (a route file's vehicle: its crossings are its route's)
+                out.append((vid, first, *rest))
+                continue
             legs = [first]
             while len(legs) <= len(self.layout.junctions):
                 edge_out = self.movement_table[legs[-1]][2][-1]
@@ -165,11 +191,17 @@ class Demand:
     def route_edges(self, route: str) -> tuple[str, ...]:
         """The edges of a demand route: a turning movement's, or a corridor trip's (:attr:`itineraries`),
         from the start of the road that feeds its first approach (``Layout.feeders``)."""
+        if route in self.file_routes:
+            return self.file_routes[route]
         legs = self.itineraries.get(route, (route,))
         edges = [*self.layout.feeders.get(legs[0], ()), *self.movement_table[legs[0]][2]]
         for leg in legs[1:]:
             edges += list(self.movement_table[leg][2][1:])
         return tuple(edges)
+
+    def first_approach(self, route: str) -> str:
+        """The approach of the first junction a demand route enters."""
+        return self.movement_table[self.itineraries.get(route, (route,))[0]][0]
 
     def _uncontrolled_hint(self, edges: list[str]) -> str:
         """Where ``edges`` lead into junctions of the network that the scenario does not control,
@@ -231,8 +263,8 @@ class Demand:
         entry approach's rate times the intervals' scale, averaged over the window (not the sampled
         arrivals); with ``demand.sumo_routes``, the file's departures in the window."""
         if self.sc.demand.sumo_routes:
-            times = [t for _, mv, t, *_ in self.departures()
-                     if begin <= t <= end and (approach is None or self.movement_table[mv][0] == approach)]
+            times = [t for _, route, t, *_ in self.departures()
+                     if begin <= t <= end and (approach is None or self.first_approach(route) == approach)]
             return len(times) / (end - begin) * 3600.0 if end > begin else 0.0
         if approach is not None and approach not in self.layout.entry_approaches:
             return math.nan  # a corridor's inner approach: fed by the junction upstream, not by demand

@@ -734,9 +734,9 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
                             f"{sc.base_dir} (allowed only with --allow-outside)")
     if sc.demand.sumo_routes:
         routes = (sc.base_dir / sc.demand.sumo_routes).resolve()
-        if not sc.junction.id:
-            raise ScenarioError("demand.sumo_routes needs a [junction] id (its vehicles are mapped to its movements; "
-                                "not [[junctions]])")
+        if not sc.controlled_junctions():
+            raise ScenarioError("demand.sumo_routes needs a [junction] id or [[junctions]] (its vehicles' crossings are "
+                                "the movements of those junctions that their routes take)")
         if not allow_outside and not routes.is_relative_to(sc.base_dir):
             raise ScenarioError(f"demand.sumo_routes = {sc.demand.sumo_routes!r} lies outside the scenario's folder "
                                 f"{sc.base_dir} (allowed only with --allow-outside)")

@@ -1,9 +1,12 @@
 """A SUMO demand file (``.rou.xml``) read into the run's departures (``demand.sumo_routes``).
 
 Each ``<vehicle>`` (with a ``route`` reference or an inline ``<route>``), ``<trip>`` (``from``/
-``to``) and ``<flow>`` (``from``/``to`` or a route; ``period``, ``vehsPerHour``, ``probability`` or
-``number`` between ``begin`` and ``end``) becomes departures of nrtraffic's own vehicle type; each is
-mapped to the junction movement whose incoming and outgoing edges its route uses. Flows follow
+``to``, ``via``) and ``<flow>`` (``from``/``to`` or a route; ``period``, ``vehsPerHour``,
+``probability`` or ``number`` between ``begin`` and ``end``) becomes departures of nrtraffic's own
+vehicle type on the file's whole route. Trips and flows given by ``from``/``to`` are first routed by
+SUMO's ``duarouter`` (:func:`routed`: the fastest route at free flow, as SUMO routes a trip at
+insertion in an empty network). A vehicle's crossings are the junction movements whose incoming and
+outgoing edges its route uses, in order along it (one per controlled junction it passes). Flows follow
 SUMO's rules: ``period`` and ``vehsPerHour`` and ``number`` give equally spaced departures,
 ``period="exp(r)"`` exponential headways of rate ``r`` [1/s], ``probability`` one chance per second;
 the random ones are drawn from the run's seed. Pure Python: SUMO then inserts the vehicles from the
@@ -13,6 +16,8 @@ run's route file like any other demand.
 from __future__ import annotations
 
 import math
+import subprocess
+import tempfile
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -38,27 +43,89 @@ def _num(el, key: str, where: str, default=None) -> float:
     return x
 
 
+_ROUTED: dict[tuple, Path] = {}  # (file, its version, network) -> the file routed by duarouter, once per process
+
+
+def _unrouted(root) -> bool:
+    """Whether the file has trips or flows given by their ends (``from``/``to``, ``via``,
+    ``fromJunction``...) rather than by a route."""
+    return any(el.tag in ("trip", "flow") and el.get("route") is None and el.find("route") is None
+               and (el.get("from") or el.get("fromJunction") or el.get("fromTaz")) for el in root)
+
+
+def routed(path: Path, net_path: Path) -> Path:
+    """``path``, or where it has trips or flows given by ``from``/``to`` (``via``), the same file with
+    each routed by SUMO's ``duarouter`` on the network ``net_path`` (the fastest route at the edges'
+    speed limits; departures, flows and attributes as they are). Raises DemandFileError, naming
+    duarouter's message, where a trip has no route."""
+    from nrtraffic.sumo.netbuild import sumo_binary
+
+    path, net_path = Path(path), Path(net_path)
+    try:
+        root = ET.parse(path).getroot()
+    except (OSError, ET.ParseError) as exc:
+        raise DemandFileError(f"demand.sumo_routes {path}: cannot be read as XML: {exc}") from None
+    if not _unrouted(root):
+        return path
+    st = path.stat()
+    key = (str(path.resolve()), st.st_mtime_ns, st.st_size, str(net_path.resolve()), net_path.stat().st_mtime_ns)
+    if key in _ROUTED and _ROUTED[key].is_file():
+        return _ROUTED[key]
+    out = Path(tempfile.mkdtemp(prefix="nrtraffic-routes-")) / f"{path.stem}.routed.rou.xml"
+    cmd = [sumo_binary("duarouter"), "--net-file", str(net_path), "--route-files", str(path), "--output-file", str(out),
+           "--no-step-log", "true", "--ignore-errors", "false", "--write-license", "false"]
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=3600)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        raise DemandFileError(f"demand.sumo_routes {path.name}: SUMO's duarouter could not be run to route its "
+                              f"trips: {exc}") from None
+    if proc.returncode != 0 or not out.is_file():
+        said = [ln.strip() for ln in (proc.stderr or proc.stdout).splitlines() if ln.strip()]
+        raise DemandFileError(f"demand.sumo_routes {path.name}: SUMO's duarouter could not route its trips: "
+                              f"{'; '.join(said[-3:]) or f'exit {proc.returncode}'} (give each trip a from/to that "
+                              "a route connects, or a route)")
+    _ROUTED[key] = out
+    return out
+
+
 def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.random.Generator, end_s: float,
-                     entry_speed_mps: float) -> list[tuple[str, str, float, float, float]]:
-    """Departures ``(vehicle_id, movement, depart_s, depart_speed_mps, -1)`` of the file, up to
-    ``end_s`` [s] for open-ended flows. ``movements`` maps ``(incoming edge, outgoing edge)`` to a
-    movement name; a route through the junction on edges it does not have is an error naming the
-    element. ``departSpeed`` is used where it is a number, else ``entry_speed_mps``."""
+                     entry_speed_mps: float, net=None) -> list[tuple]:
+    """Departures ``(vehicle_id, crossings, depart_s, depart_speed_mps, -1, edges)`` of the file, up
+    to ``end_s`` [s] for open-ended flows: ``crossings`` the movements its route takes, in order
+    (``movements`` maps ``(incoming edge, outgoing edge)`` to a movement name), ``edges`` its whole
+    route. A route that crosses no controlled junction is an error naming the element; with
+    ``net`` (a sumolib network) so is a route over an edge the network does not have, or over two
+    edges it does not connect. ``departSpeed`` is used where it is a number, else
+    ``entry_speed_mps``. A trip given by ``from``/``to`` that is not routed (:func:`routed`) is the
+    two edges."""
     path = Path(path)
     try:
         root = ET.parse(path).getroot()
     except (OSError, ET.ParseError) as exc:
         raise DemandFileError(f"demand.sumo_routes {path}: cannot be read as XML: {exc}") from None
     routes = {r.get("id"): r.get("edges", "").split() for r in root.findall("route")}
+    checked: set[tuple[str, ...]] = set()
 
-    def movement(edges: list[str], where: str) -> str:
-        for a, b in zip(edges, edges[1:]):
-            if (a, b) in movements:
-                return movements[(a, b)]
-        raise DemandFileError(f"{where}: its route {' '.join(edges)!r} uses no movement of the junction "
-                              f"(in -> out edges: {', '.join(f'{a} -> {b}' for a, b in movements)})")
+    def crossings(edges: list[str], where: str) -> tuple[str, ...]:
+        if net is not None and tuple(edges) not in checked:
+            for e in edges:
+                if not net.hasEdge(e):
+                    raise DemandFileError(f"{where}: its route names edge {e!r}, which the network does not have")
+            for a, b in zip(edges, edges[1:]):
+                if not any(o.getID() == b for o in net.getEdge(a).getOutgoing()):
+                    raise DemandFileError(f"{where}: its route goes from edge {a!r} to {b!r}, which the network does "
+                                          "not connect (give the edges between them, or a trip to route)")
+            checked.add(tuple(edges))
+        legs = tuple(movements[(a, b)] for a, b in zip(edges, edges[1:]) if (a, b) in movements)
+        if not legs:
+            raise DemandFileError(f"{where}: its route {' '.join(edges)!r} uses no movement of the junction "
+                                  f"(in -> out edges: {', '.join(f'{a} -> {b}' for a, b in movements)})")
+        return legs
 
     def edges_of(el, where: str) -> list[str]:
+        inner = el.find("route")
+        if inner is not None:
+            return inner.get("edges", "").split()
         if el.get("from") and el.get("to"):
             return [el.get("from"), el.get("to")]
         ref = el.get("route")
@@ -66,9 +133,6 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
             if ref not in routes:
                 raise DemandFileError(f"{where}: route {ref!r} is not defined in the file")
             return routes[ref]
-        inner = el.find("route")
-        if inner is not None:
-            return inner.get("edges", "").split()
         raise DemandFileError(f"{where}: needs from/to, a route attribute or an inner <route>")
 
     def speed(el, where: str) -> float:
@@ -89,10 +153,12 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
         where = f"demand.sumo_routes {path.name}: <{tag} id={vid!r}>"
         if not vid:
             raise DemandFileError(f"demand.sumo_routes {path.name}: a <{tag}> without an id")
-        mv = movement(edges_of(el, where), where)
+        edges = edges_of(el, where)
+        legs = crossings(edges, where)
+        edges = tuple(edges)
         v0 = speed(el, where)
         if tag in ("vehicle", "trip"):
-            out.append((vid, mv, _num(el, "depart", where), v0, -1.0))
+            out.append((vid, legs, _num(el, "depart", where), v0, -1.0, edges))
             continue
         begin = _num(el, "begin", where, 0.0)
         end = min(_num(el, "end", where, math.inf), end_s)
@@ -134,7 +200,7 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
             raise DemandFileError(f"{where}: needs period, vehsPerHour, probability or number")
         if el.get("number") is not None and (el.get("period") is not None or el.get("vehsPerHour") is not None):
             times = times[:int(_num(el, "number", where))]
-        out += [(f"{vid}.{k}", mv, float(t), v0, -1.0) for k, t in enumerate(times)]
+        out += [(f"{vid}.{k}", legs, float(t), v0, -1.0, edges) for k, t in enumerate(times)]
     ids = [o[0] for o in out]
     if len(set(ids)) != len(ids):
         raise DemandFileError(f"demand.sumo_routes {path.name}: vehicle ids repeat")

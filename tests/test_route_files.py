@@ -1,0 +1,92 @@
+"""Route files as SUMO reads them, on a corridor of three controlled junctions: whole routes kept,
+trips routed (as duarouter routes them: the fastest path at the speed limits), each vehicle's
+crossings taken from its route, and a route the network cannot drive refused before SUMO starts."""
+
+import re
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+
+import pandas as pd
+import pytest
+import sumolib
+
+from conftest import ROOT, copy_scenario
+
+ROUTES = """<routes>
+    <trip id="through" depart="2" from="W_J1" to="J3_E"/>
+    <vehicle id="side" depart="4"><route edges="N1_J1 J1_J2 J2_S2"/></vehicle>
+    <flow id="west" from="E_J3" to="J2_N2" begin="0" end="40" vehsPerHour="180"/>
+    <trip id="via" depart="6" from="S3_J3" to="J1_W" via="J3_J2"/>
+</routes>
+"""
+
+
+def _corridor(tmp_path, routes=ROUTES):
+    d = copy_scenario("corridor3", tmp_path / "sc", "min_headway_s = 1.5\n",
+                      'min_headway_s = 1.5\nsumo_routes = "r.rou.xml"\n')
+    toml = d / "scenario.toml"
+    text = toml.read_text()
+    text = text[:text.index("[[demand.flows]]")] + text[text.index("[[junctions]]"):]  # the file is the demand
+    toml.write_text(text)
+    (d / "r.rou.xml").write_text(routes)
+    return d
+
+
+def _run(args, **kw):
+    return subprocess.run([sys.executable, "-m", "runners.cli", *map(str, args), "--no-progress"], cwd=ROOT,
+                          capture_output=True, text=True, **kw)
+
+
+def test_a_route_file_drives_a_corridor_each_vehicle_on_its_whole_route(tmp_path):
+    d = _corridor(tmp_path)
+    out = tmp_path / "run"
+    r = _run(["run", d / "scenario.toml", "--duration", "150", "--set", "outputs.warmup_s=0", "--out", out])
+    assert r.returncode == 0, r.stderr
+    net = sumolib.net.readNet(str(d / "net.net.xml"))
+
+    def fastest(a, b, via=()):
+        stops = [a, *via, b]
+        path = [stops[0]]
+        for x, y in zip(stops, stops[1:]):
+            path += [e.getID() for e in net.getFastestPath(net.getEdge(x), net.getEdge(y))[0][1:]]
+        return path
+
+    # the routes SUMO was given: each vehicle's whole route; trips routed on the fastest path
+    rou = ET.parse(out / "sumo" / "routes.rou.xml").getroot()
+    routes = {r.get("id"): r.get("edges").split() for r in rou.iter("route")}
+    given = {v.get("id"): routes[v.get("route")] for v in rou.iter("vehicle")}
+    assert given["through"] == fastest("W_J1", "J3_E") == ["W_J1", "J1_J2", "J2_J3", "J3_E"]
+    assert given["side"] == ["N1_J1", "J1_J2", "J2_S2"]
+    assert given["via"] == fastest("S3_J3", "J1_W", ["J3_J2"])
+    flow = [v for v in given if v.startswith("west.")]
+    assert len(flow) == 2 and all(given[v] == fastest("E_J3", "J2_N2") for v in flow)
+    # SUMO drove them to the end of those routes (its own tripinfo: where each arrived, how far it went)
+    trips = {t.get("id"): t for t in ET.parse(out / "tripinfo.xml").getroot().iter("tripinfo")}
+    for vid, edges in given.items():
+        assert trips[vid].get("arrivalLane").rsplit("_", 1)[0] == edges[-1]
+        assert float(trips[vid].get("routeLength")) > sum(net.getEdge(e).getLength() for e in edges[1:-1])
+    # one crossing per controlled junction on the route, in order, each under control
+    v = pd.read_csv(out / "vehicles.csv")
+    legs = v.groupby("vehicle_id")["junction"].apply(list).to_dict()
+    assert legs["through"] == ["J1", "J2", "J3"]
+    assert legs["side"] == ["J1", "J2"]
+    assert legs["via"] == ["J3", "J2", "J1"]
+    assert all(legs[f] == ["J3", "J2"] for f in flow)
+    assert v["t_exit_s"].notna().all() and (v["plant_steps"] > 0).all()
+
+
+@pytest.mark.parametrize("body, message", [
+    ('<vehicle id="x" depart="1"><route edges="W_J1 J1_J2 J2_J3 nowhere"/></vehicle>',
+     "names edge 'nowhere', which the network does not have"),
+    ('<vehicle id="x" depart="1"><route edges="W_J1 J2_J3"/></vehicle>',
+     "from edge 'W_J1' to 'J2_J3', which the network does not connect"),
+    ('<trip id="x" depart="1" from="W_J1" to="N1_J1"/>', "duarouter could not route its trips"),
+])
+def test_a_route_the_network_cannot_drive_is_refused_before_sumo_starts(tmp_path, body, message):
+    d = _corridor(tmp_path, f"<routes>\n    {body}\n</routes>\n")
+    out = tmp_path / "run"
+    r = _run(["run", d / "scenario.toml", "--duration", "30", "--out", out])
+    assert r.returncode == 2, r.stderr
+    assert re.search(re.escape(message), r.stderr) and "demand.sumo_routes" in r.stderr, r.stderr
+    assert not (out / "summary.json").exists()  # refused before the run
