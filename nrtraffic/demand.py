@@ -109,20 +109,24 @@ class Demand:
         return [(*v, "human" if (x >= share and v[0] not in listed) else "auto") for v, x in zip(veh, u)]
 
     def _file_departures(self, rng) -> list[tuple]:
-        """``demand.sumo_routes``: the file's departures (trips routed by duarouter), each on its
-        whole route, named by the movements it takes joined with "+" (and "#k" where routes with
+        """``demand.sumo_routes``: the file's departures (trips routed by duarouter) from
+        ``scenario.begin_s`` on, measured from it, each on its whole route, named by the movements it takes joined with "+" (and "#k" where routes with
         the same crossings differ elsewhere); :attr:`itineraries` and :attr:`file_routes`."""
         from nrtraffic.sumo.demandfile import read_sumo_demand, routed
         from nrtraffic.sumo.network import read_net
 
         d = self.sc.demand
+        t0 = self.sc.general.begin_s  # the file's times are SUMO's clock: the run starts at t0
         end = d.end_s if d.end_s > 0 else (self.duration if self.duration > 0 else math.inf)
         by_edges = {(r[0], r[1]): name for name, (_, _, r) in self.movement_table.items()}
         path = routed(self.sc.base_dir / d.sumo_routes, self.sc.network_path)
         named: dict[tuple, str] = {}
         veh = []
-        for vid, legs, t, v0, pos, edges in read_sumo_demand(path, by_edges, rng, end, d.entry_speed_mps,
+        for vid, legs, t, v0, pos, edges in read_sumo_demand(path, by_edges, rng, t0 + end, d.entry_speed_mps,
                                                               net=read_net(self.sc.network_path)):
+            t -= t0
+            if t < -1e-9:  # (before the run's start: SUMO does not insert it either)
+                continue
             key = named.get((legs, edges))
             if key is None:
                 key = "+".join(legs)
@@ -293,5 +297,5 @@ class Demand:
             types.append(VehicleType("human", params.length, params.width, h.min_gap_m, h.accel_mps2, h.decel_mps2,
                                      v_max, h.sigma, h.tau_s, h.speed_dev, h.car_follow_model))
         routes = {k: self.route_edges(k) for k in [*self.movement_table, *self.itineraries]}
-        write_routes(path, types, routes, demand)
+        write_routes(path, types, routes, demand, t0_s=self.sc.general.begin_s)
         return demand

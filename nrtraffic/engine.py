@@ -196,7 +196,7 @@ class Engine:
                 tripinfo=self.workdir / "tripinfo.xml" if o.sumo_tripinfo else None,
                 collisions=self.workdir / "collisions.xml" if o.sumo_collisions else None,
                 fcd=self.workdir / "fcd.xml" if o.sumo_fcd else None,
-                extra_args=self.sc.sumo.extra_args + detectors, gui=self.gui)
+                extra_args=self.sc.sumo.extra_args + detectors, gui=self.gui, begin_s=self.sc.general.begin_s)
             with st.sumo:
                 self._build_junctions(st)
                 self._loop()
@@ -437,14 +437,15 @@ class Engine:
             waiting_to_enter=[t for _, t, _ in self.admission.scheduled.values()] if self.admission else [],
             vehicles_spawned=sum(r.status != "waiting" for r in records.values()),
             drivers={r.vehicle_id: r.driver for r in records.values()},
-            wall_breakdown=self.wall_breakdown, versions=(__version__, sumo_version()))
+            wall_breakdown=self.wall_breakdown, versions=(__version__, sumo_version()),
+            begin_s=self.sc.general.begin_s)
         status = ("ok" if error is None else "gridlock" if isinstance(error, Gridlock) else "failed") \
             if final else "running"
         demand = self.demand.demand_veh_h if self.demand is not None else None  # (None: stopped while it was built)
         summary = run_summary(facts, veh, trips, demand, status, error)
         extra = {}
         if final and self.sc.controlled_junctions() and self.demand is not None:
-            queues = parse_queues(self.workdir / "queues.xml")
+            queues = parse_queues(self.workdir / "queues.xml", t0_s=self.sc.general.begin_s)
             extra["approaches"] = approach_table(veh, queues, self.layout.approaches, self.demand.demand_veh_h,
                                                  summary["measure_from_s"], summary["measure_to_s"])
             extra["queues"] = queues

@@ -38,6 +38,7 @@ class General:
     network: str = ""  # path of the .net.xml, relative to the scenario file (required)
     seed: int = 1  # random seed of arrivals and SUMO (--seed overrides it)
     duration_s: float = 0.0  # simulated time; 0 runs until every vehicle has left
+    begin_s: float = 0.0  # SUMO's clock at the run's start (--begin), e.g. 25200 for 07:00; route files give absolute times, every other time of the run is measured from it
 
     def validate(self) -> None:
         if not self.network:
@@ -592,7 +593,7 @@ def _coerce(section: str, key: str, typ, value):
 # the work per simulated second (steps per step) are checked in Controller.validate and check_work.
 _DAY_S = 86400.0
 RANGES: dict[str, dict[str, tuple[float, float]]] = {
-    "scenario": {"seed": (0, MAX_SEED), "duration_s": (0.0, MAX_DURATION_S)},
+    "scenario": {"seed": (0, MAX_SEED), "duration_s": (0.0, MAX_DURATION_S), "begin_s": (0.0, 1e8)},
     "sumo": {"step_length_s": (0.001, 1.0), "lateral_resolution_m": (0.0, 5.0)},
     "controller": {"plant_step_s": (1e-4, 0.1), "predictor_step_s": (1e-4, 1.0), "horizon_s": (1e-3, 20.0),
                    "alpha": (1e-3, 1e5), "damping": (0.0, 1.0), "predictor_mass_factor": (0.1, 10.0),

@@ -2,6 +2,7 @@
 trips routed (as duarouter routes them: the fastest path at the speed limits), each vehicle's
 crossings taken from its route, and a route the network cannot drive refused before SUMO starts."""
 
+import json
 import re
 import subprocess
 import sys
@@ -90,3 +91,49 @@ def test_a_route_the_network_cannot_drive_is_refused_before_sumo_starts(tmp_path
     assert r.returncode == 2, r.stderr
     assert re.search(re.escape(message), r.stderr) and "demand.sumo_routes" in r.stderr, r.stderr
     assert not (out / "summary.json").exists()  # refused before the run
+
+
+def test_a_route_file_at_seven_in_the_morning_gives_the_figures_of_the_same_file_at_zero(tmp_path):
+    """scenario.begin_s = 25200 (SUMO's --begin) with tee3's route file moved to 07:00: the same
+    vehicles, crossings and figures as the file at 0 s, times measured from the start."""
+    from conftest import SCENARIOS
+
+    runs = {}
+    for begin in (0, 25200):
+        d = tmp_path / f"at{begin}"
+        d.mkdir()
+        for f in (SCENARIOS / "tee3").iterdir():
+            if f.is_file():
+                (d / f.name).write_bytes(f.read_bytes())
+        tree = ET.parse(d / "flows.rou.xml")
+        for el in tree.getroot():
+            for key in ("depart", "begin", "end"):
+                if el.get(key) is not None:
+                    el.set(key, f"{float(el.get(key)) + begin:.2f}")
+        tree.write(d / "flows.rou.xml")
+        toml = d / "routes.toml"
+        toml.write_text(toml.read_text().replace("duration_s = 600.0", f"duration_s = 600.0\nbegin_s = {begin}.0"))
+        out = tmp_path / f"run{begin}"
+        r = _run(["run", toml, "--duration", "120", "--set", "outputs.warmup_s=10", "--out", out])
+        assert r.returncode == 0, r.stderr
+        runs[begin] = out
+    a, b = (pd.read_csv(runs[k] / "vehicles.csv").set_index("vehicle_id").sort_index() for k in (0, 25200))
+    assert len(a) > 10 and list(a.index) == list(b.index)
+    num = a.select_dtypes("number").columns
+    pd.testing.assert_frame_equal(a[num], b[num], rtol=1e-6, atol=1e-6)
+    sa, sb = (json.loads((runs[k] / "summary.json").read_text()) for k in (0, 25200))
+    assert sb["begin_s"] == 25200 and sa["begin_s"] == 0
+    for key in ("vehicles_spawned", "throughput_veh_h", "mean_delay_s", "demand_veh_h", "measure_from_s", "measure_to_s"):
+        assert sa[key] == pytest.approx(sb[key], rel=1e-9, abs=1e-9), key
+    # SUMO's own clock ran from 07:00: its tripinfo departures are the relative ones plus 25200
+    dep = {t.get("id"): float(t.get("depart")) for t in ET.parse(runs[25200] / "tripinfo.xml").getroot().iter("tripinfo")}
+    dep0 = {t.get("id"): float(t.get("depart")) for t in ET.parse(runs[0] / "tripinfo.xml").getroot().iter("tripinfo")}
+    assert dep and all(abs(dep[v] - dep0[v] - 25200) < 1e-6 for v in dep0)
+
+
+def test_sumo_clock_options_are_refused_for_scenario_begin_s(tmp_path):
+    from conftest import SCENARIOS
+
+    r = _run(["run", SCENARIOS / "tee3" / "routes.toml", "--set", 'sumo.extra_args=["--begin", "25200"]',
+              "--out", tmp_path / "run"])
+    assert r.returncode == 2 and "scenario.begin_s" in r.stderr, r.stderr

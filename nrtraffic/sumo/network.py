@@ -251,6 +251,10 @@ def check_sumo_args(args: tuple[str, ...]) -> None:
     unknown += [a for a, n in given if n not in known]
     if unknown:
         raise NetworkError(f"sumo.extra_args: SUMO has no option {', '.join(unknown)}")
+    clock = [a if a.startswith("--") else f"{a} (--{n})" for a, n in given if n in ("begin", "end")]
+    if clock:
+        raise NetworkError(f"sumo.extra_args: {', '.join(clock)} sets SUMO's clock, which the run keeps itself: "
+                           "use scenario.begin_s for the start and scenario.duration_s (or --duration) for the length")
     writing = [a if a.startswith("--") else f"{a} (--{n})" for a, n in given if n in sumo_writing_options()]
     if writing:
         raise NetworkError(f"sumo.extra_args: {', '.join(writing)} would write files outside the run folder; "
