@@ -109,29 +109,31 @@ class Demand:
         return [(*v, "human" if (x >= share and v[0] not in listed) else "auto") for v, x in zip(veh, u)]
 
     def _file_departures(self, rng) -> list[tuple]:
-        """``demand.sumo_routes``: the file's departures (trips routed by duarouter) from
-        ``scenario.begin_s`` on, measured from it, each on its whole route, named by the movements it takes joined with "+" (and "#k" where routes with
-        the same crossings differ elsewhere); :attr:`itineraries` and :attr:`file_routes`."""
-        from nrtraffic.sumo.demandfile import read_sumo_demand, routed
+        """``demand.sumo_routes``: the files' departures (trips routed by duarouter) from
+        ``scenario.begin_s`` on, measured from it, each on its whole route, named by the movements
+        it takes joined with "+" (and "#k" where routes with the same crossings differ elsewhere);
+        :attr:`itineraries` and :attr:`file_routes`."""
+        from nrtraffic.sumo.demandfile import merged, read_sumo_demand, routed
         from nrtraffic.sumo.network import read_net
 
         d = self.sc.demand
         t0 = self.sc.general.begin_s  # the file's times are SUMO's clock: the run starts at t0
         end = d.end_s if d.end_s > 0 else (self.duration if self.duration > 0 else math.inf)
         by_edges = {(r[0], r[1]): name for name, (_, _, r) in self.movement_table.items()}
-        path = routed(self.sc.base_dir / d.sumo_routes, self.sc.network_path)
+        net = read_net(self.sc.network_path)
+        read = read_sumo_demand(routed(merged(d.route_files(self.sc.base_dir)), self.sc.network_path), by_edges, rng,
+                                t0 + end, d.entry_speed_mps, net=net)
         named: dict[tuple, str] = {}
+        variants: dict[tuple, int] = {}  # crossings -> routes named for them so far
         veh = []
-        for vid, legs, t, v0, pos, edges in read_sumo_demand(path, by_edges, rng, t0 + end, d.entry_speed_mps,
-                                                              net=read_net(self.sc.network_path)):
+        for vid, legs, t, v0, pos, edges in read:
             t -= t0
             if t < -1e-9:  # (before the run's start: SUMO does not insert it either)
                 continue
             key = named.get((legs, edges))
             if key is None:
-                key = "+".join(legs)
-                k = sum(1 for other in named if other[0] == legs)
-                key = key if k == 0 else f"{key}#{k}"
+                k = variants[legs] = variants.get(legs, -1) + 1
+                key = "+".join(legs) + (f"#{k}" if k else "")
                 named[(legs, edges)] = key
                 self.itineraries[key] = legs
                 self.file_routes[key] = edges

@@ -75,6 +75,11 @@ def test_a_route_file_drives_a_corridor_each_vehicle_on_its_whole_route(tmp_path
     assert legs["via"] == ["J3", "J2", "J1"]
     assert all(legs[f] == ["J3", "J2"] for f in flow)
     assert v["t_exit_s"].notna().all() and (v["plant_steps"] > 0).all()
+    # the run folder holds its route file: it replays from there alone
+    assert (out / "sumo" / "r.rou.xml").read_text() == ROUTES
+    (d / "r.rou.xml").unlink()
+    r = _run(["replay", out, "--out", tmp_path / "again"])
+    assert r.returncode == 0 and "matches" in r.stdout + r.stderr, r.stdout + r.stderr
 
 
 @pytest.mark.parametrize("body, message", [
@@ -137,3 +142,44 @@ def test_sumo_clock_options_are_refused_for_scenario_begin_s(tmp_path):
     r = _run(["run", SCENARIOS / "tee3" / "routes.toml", "--set", 'sumo.extra_args=["--begin", "25200"]',
               "--out", tmp_path / "run"])
     assert r.returncode == 2 and "scenario.begin_s" in r.stderr, r.stderr
+
+
+def test_a_sumocfg_gives_the_network_route_files_begin_and_end(tmp_path):
+    """scenario.sumocfg: the network, two route files (a route defined in one, used in the other),
+    begin and end from a SUMO configuration in a folder of its own."""
+    from nrtraffic import scenario
+    from nrtraffic.demand import Demand
+
+    d = _corridor(tmp_path)
+    cfg = d / "sumo"
+    cfg.mkdir()
+    (d / "net.net.xml").rename(cfg / "city.net.xml")
+    (cfg / "defs.rou.xml").write_text('<routes>\n    <route id="r" edges="N1_J1 J1_J2 J2_S2"/>\n</routes>\n')
+    (cfg / "cars.rou.xml").write_text('<routes>\n    <vehicle id="a" depart="25210" route="r"/>\n'
+                                      '    <vehicle id="early" depart="25100" route="r"/>\n'
+                                      '    <trip id="b" depart="25230" from="W_J1" to="J3_E"/>\n</routes>\n')
+    (cfg / "city.sumocfg").write_text("""<configuration>
+    <input>
+        <net-file value="city.net.xml"/>
+        <route-files value="defs.rou.xml,cars.rou.xml"/>
+    </input>
+    <time>
+        <begin value="25200"/>
+        <end value="28800"/>
+    </time>
+</configuration>
+""")
+    toml = d / "scenario.toml"
+    text = toml.read_text().replace('network = "net.net.xml"', 'sumocfg = "sumo/city.sumocfg"')
+    text = text.replace("duration_s = 600.0\n", "").replace('sumo_routes = "r.rou.xml"\n', "")
+    toml.write_text(text)
+    sc = scenario.load(toml)
+    assert sc.network_path == (cfg / "city.net.xml").resolve()
+    assert sc.general.begin_s == 25200 and sc.general.duration_s == 3600
+    assert [p.name for p in sc.demand.route_files(sc.base_dir)] == ["defs.rou.xml", "cars.rou.xml"]
+    dem = Demand.of(sc)
+    dep = {v[0]: (v[1], v[2]) for v in dem.departures()}
+    assert set(dep) == {"a", "b"}  # "early" departs before the begin: SUMO does not insert it
+    assert dep["a"][1] == 10.0 and dep["b"][1] == 30.0
+    assert dem.route_edges(dep["a"][0]) == ("N1_J1", "J1_J2", "J2_S2")
+    assert dem.itineraries[dep["b"][0]] == ("W_J1.straight", "J1_J2.straight", "J2_J3.straight")

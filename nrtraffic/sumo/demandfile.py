@@ -53,6 +53,27 @@ def _unrouted(root) -> bool:
                and (el.get("from") or el.get("fromJunction") or el.get("fromTaz")) for el in root)
 
 
+def merged(paths: list[Path]) -> Path:
+    """One route file of ``paths`` (SUMO reads several as one: a route or type defined in one is used
+    in another): the first where it is the only one, else their elements in one ``<routes>``."""
+    paths = [Path(p) for p in paths]
+    if len(paths) == 1:
+        return paths[0]
+    key = tuple((str(p.resolve()), p.stat().st_mtime_ns, p.stat().st_size) for p in paths)
+    if key in _ROUTED and _ROUTED[key].is_file():
+        return _ROUTED[key]
+    root = ET.Element("routes")
+    for p in paths:
+        try:
+            root.extend(list(ET.parse(p).getroot()))
+        except (OSError, ET.ParseError) as exc:
+            raise DemandFileError(f"demand.sumo_routes {p}: cannot be read as XML: {exc}") from None
+    out = Path(tempfile.mkdtemp(prefix="nrtraffic-routes-")) / "merged.rou.xml"
+    ET.ElementTree(root).write(out, encoding="utf-8", xml_declaration=True)
+    _ROUTED[key] = out
+    return out
+
+
 def routed(path: Path, net_path: Path) -> Path:
     """``path``, or where it has trips or flows given by ``from``/``to`` (``via``), the same file with
     each routed by SUMO's ``duarouter`` on the network ``net_path`` (the fastest route at the edges'
