@@ -39,9 +39,10 @@ class Demand:
     """The run's departures and the demand of a window, from the scenario and the junctions'
     :class:`~nrtraffic.junction.Layout` (no SUMO run).
 
-    :meth:`departures` are ``(vehicle_id, route, depart_s, depart_speed_mps, depart_pos_m, type)``
-    in order of departure; ``route`` is a turning movement, or on a corridor a trip through several
-    junctions (:attr:`itineraries`); ``type`` is "auto" or "human".
+    :meth:`departures` are ``(vehicle_id, route, depart_s, depart_speed_mps, depart_pos_m, type,
+    depart_lane)`` in order of departure; ``route`` is a turning movement, or on a corridor a trip
+    through several junctions (:attr:`itineraries`); ``type`` is "auto" or "human"; ``depart_lane``
+    SUMO's departLane ("best" unless a route file gives one).
     """
 
     def __init__(self, sc, layout, seed: int, duration_s: float):
@@ -106,7 +107,8 @@ class Demand:
         u = np.random.default_rng([self.seed, SHARE_STREAM]).random(len(veh))
         share = d.controlled_share
         listed = {v.id for v in self.sc.vehicles}
-        return [(*v, "human" if (x >= share and v[0] not in listed) else "auto") for v, x in zip(veh, u)]
+        return [(*v[:5], "human" if (x >= share and v[0] not in listed) else "auto", v[5] if len(v) > 5 else "best")
+                for v, x in zip(veh, u)]
 
     def _file_departures(self, rng) -> list[tuple]:
         """``demand.sumo_routes``: the files' departures (trips routed by duarouter) from
@@ -121,12 +123,13 @@ class Demand:
         end = d.end_s if d.end_s > 0 else (self.duration if self.duration > 0 else math.inf)
         by_edges = {(r[0], r[1]): name for name, (_, _, r) in self.movement_table.items()}
         net = read_net(self.sc.network_path)
-        read = read_sumo_demand(routed(merged(d.route_files(self.sc.base_dir)), self.sc.network_path), by_edges, rng,
-                                t0 + end, d.entry_speed_mps, net=net)
+        files = d.route_files(self.sc.base_dir)
+        read = read_sumo_demand(routed(merged(files), self.sc.network_path), by_edges, rng, t0 + end, d.entry_speed_mps,
+                                net=net, source=", ".join(f.name for f in files))
         named: dict[tuple, str] = {}
         variants: dict[tuple, int] = {}  # crossings -> routes named for them so far
         veh = []
-        for vid, legs, t, v0, pos, edges in read:
+        for vid, legs, t, v0, pos, edges, lane in read:
             t -= t0
             if t < -1e-9:  # (before the run's start: SUMO does not insert it either)
                 continue
@@ -137,7 +140,7 @@ class Demand:
                 named[(legs, edges)] = key
                 self.itineraries[key] = legs
                 self.file_routes[key] = edges
-            veh.append((vid, key, t, v0, pos))
+            veh.append((vid, key, t, v0, pos, lane))
         return veh
 
     def _arrival_times(self, rng, rate: float, end: float) -> np.ndarray:

@@ -16,7 +16,7 @@ from conftest import ROOT, copy_scenario
 
 ROUTES = """<routes>
     <trip id="through" depart="2" from="W_J1" to="J3_E"/>
-    <vehicle id="side" depart="4"><route edges="N1_J1 J1_J2 J2_S2"/></vehicle>
+    <vehicle id="side" depart="4" departPos="50" departLane="0"><route edges="N1_J1 J1_J2 J2_S2"/></vehicle>
     <flow id="west" from="E_J3" to="J2_N2" begin="0" end="40" vehsPerHour="180"/>
     <trip id="via" depart="6" from="S3_J3" to="J1_W" via="J3_J2"/>
 </routes>
@@ -64,6 +64,7 @@ def test_a_route_file_drives_a_corridor_each_vehicle_on_its_whole_route(tmp_path
     assert len(flow) == 2 and all(given[v] == fastest("E_J3", "J2_N2") for v in flow)
     # SUMO drove them to the end of those routes (its own tripinfo: where each arrived, how far it went)
     trips = {t.get("id"): t for t in ET.parse(out / "tripinfo.xml").getroot().iter("tripinfo")}
+    assert float(trips["side"].get("departPos")) == 50.0 and trips["side"].get("departLane") == "N1_J1_0"
     for vid, edges in given.items():
         assert trips[vid].get("arrivalLane").rsplit("_", 1)[0] == edges[-1]
         assert float(trips[vid].get("routeLength")) > sum(net.getEdge(e).getLength() for e in edges[1:-1])
@@ -88,6 +89,11 @@ def test_a_route_file_drives_a_corridor_each_vehicle_on_its_whole_route(tmp_path
     ('<vehicle id="x" depart="1"><route edges="W_J1 J2_J3"/></vehicle>',
      "from edge 'W_J1' to 'J2_J3', which the network does not connect"),
     ('<trip id="x" depart="1" from="W_J1" to="N1_J1"/>', "duarouter could not route its trips"),
+    ('<trip id="x" depart="1" from="W_J1" to="J1_J2" departLane="2"/>', "departLane=2, but its first edge 'W_J1' has 1"),
+    ('<vehicle id="x" depart="1" departLane="left"><route edges="W_J1 J1_J2"/></vehicle>',
+     "departLane='left' is not a lane index"),
+    ('<trip id="x" depart="1" from="W_J1" to="J1_J2" departLane="left"/>', "Invalid departLane definition for trip 'x'"),
+    ('<trip id="x" depart="1" from="W_J1" to="J1_J2" departPos="900"/>', "r.rou.xml: <vehicle id='x'>: departPos=900.00 lies beyond its first edge 'W_J1'"),
 ])
 def test_a_route_the_network_cannot_drive_is_refused_before_sumo_starts(tmp_path, body, message):
     d = _corridor(tmp_path, f"<routes>\n    {body}\n</routes>\n")

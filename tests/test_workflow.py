@@ -279,7 +279,7 @@ def test_sumo_demand_file_follows_sumos_flow_rules(tmp_path):
     <trip id="t" depart="3.5" from="W_in" to="S_out"/>
     <vehicle id="v" depart="7"><route edges="E_in W_out"/></vehicle>""")
     dep = read_sumo_demand(p, _MOVES, np.random.default_rng(1), math.inf, 13.89)
-    by = pd.DataFrame([(vid, legs[0], t, v, pos) for vid, legs, t, v, pos, _ in dep],
+    by = pd.DataFrame([(vid, legs[0], t, v, pos) for vid, legs, t, v, pos, *_ in dep],
                       columns=["id", "movement", "t", "v", "pos"])
     a = by[by["id"].str.startswith("a.")]
     assert len(a) == 120 and np.allclose(np.diff(a["t"]), 30.0) and a["t"].iloc[0] == 10.0

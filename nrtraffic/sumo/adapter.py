@@ -142,7 +142,8 @@ def write_routes(path: Path, vtype, routes: dict[str, tuple[str, ...]], vehicles
 
     ``vtype``: a :class:`VehicleType`, or a list of them (the first is the default).
     ``vehicles``: iterable of ``(vehicle_id, route_name, depart_s, depart_speed_mps[, depart_pos_m[,
-    type_id]])`` sorted by departure (``depart_pos_m`` < 0 or absent: SUMO's ``base``, the vehicle
+    type_id[, depart_lane]]])`` sorted by departure (``depart_lane``: SUMO's departLane, "best"
+    where absent; ``depart_pos_m`` < 0 or absent: SUMO's ``base``, the vehicle
     just on the lane). The default type's speeds are deterministic (``speedFactor=1``,
     ``sigma=0``); randomness then comes from the arrival times only. ``t0_s``: SUMO's clock at the
     run's start, added to each departure (``depart_s`` is measured from the start) [s].
@@ -156,9 +157,10 @@ def write_routes(path: Path, vtype, routes: dict[str, tuple[str, ...]], vehicles
         pos = rest[0] if rest and rest[0] >= 0 else "base"
         pos = pos if isinstance(pos, str) else f"{pos:.3f}"
         tid = rest[1] if len(rest) > 1 else types[0].id
+        lane = rest[2] if len(rest) > 2 else "best"
         lines.append(
             f'    <vehicle id="{vid}" type="{tid}" route="{route}" depart="{depart + t0_s:.2f}" '
-            f'departSpeed="{speed:.3f}" departPos="{pos}" departLane="best"/>'
+            f'departSpeed="{speed:.3f}" departPos="{pos}" departLane="{lane}"/>'
         )
     lines.append("</routes>")
     path.write_text("\n".join(lines) + "\n")

@@ -43,6 +43,7 @@ def _num(el, key: str, where: str, default=None) -> float:
     return x
 
 
+DEPART_LANES = ("random", "free", "allowed", "best", "best_prob", "first")  # SUMO's departLane words
 _ROUTED: dict[tuple, Path] = {}  # (file, its version, network) -> the file routed by duarouter, once per process
 
 
@@ -103,27 +104,31 @@ def routed(path: Path, net_path: Path) -> Path:
     if proc.returncode != 0 or not out.is_file():
         said = [ln.strip() for ln in (proc.stderr or proc.stdout).splitlines() if ln.strip()]
         raise DemandFileError(f"demand.sumo_routes {path.name}: SUMO's duarouter could not route its trips: "
-                              f"{'; '.join(said[-3:]) or f'exit {proc.returncode}'} (give each trip a from/to that "
-                              "a route connects, or a route)")
+                              f"{'; '.join(said[-3:]) or f'exit {proc.returncode}'} (mend the element it names: "
+                              "a trip needs a from and a to that some route connects)")
     _ROUTED[key] = out
     return out
 
 
 def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.random.Generator, end_s: float,
-                     entry_speed_mps: float, net=None) -> list[tuple]:
-    """Departures ``(vehicle_id, crossings, depart_s, depart_speed_mps, -1, edges)`` of the file, up
-    to ``end_s`` [s] for open-ended flows: ``crossings`` the movements its route takes, in order
-    (``movements`` maps ``(incoming edge, outgoing edge)`` to a movement name), ``edges`` its whole
-    route. A route that crosses no controlled junction is an error naming the element; with
-    ``net`` (a sumolib network) so is a route over an edge the network does not have, or over two
-    edges it does not connect. ``departSpeed`` is used where it is a number, else
-    ``entry_speed_mps``. A trip given by ``from``/``to`` that is not routed (:func:`routed`) is the
-    two edges."""
+                     entry_speed_mps: float, net=None, source: str | None = None) -> list[tuple]:
+    """Departures ``(vehicle_id, crossings, depart_s, depart_speed_mps, depart_pos_m, edges,
+    depart_lane)`` of the file, up to ``end_s`` [s] for open-ended flows: ``crossings`` the
+    movements its route takes, in order (``movements`` maps ``(incoming edge, outgoing edge)`` to a
+    movement name), ``edges`` its whole route. A route that crosses no controlled junction is an
+    error naming the element; with ``net`` (a sumolib network) so is a route over an edge the
+    network does not have, or over two edges it does not connect, and a ``departLane`` or
+    ``departPos`` its first edge does not have. ``departSpeed`` is used where it is a number, else
+    ``entry_speed_mps``; ``departPos`` where it is a number, else -1 (SUMO's ``base``);
+    ``departLane`` as given (a lane index or SUMO's word), else "best". A trip given by
+    ``from``/``to`` that is not routed (:func:`routed`) is the two edges. ``source``: the file's
+    name in messages (the user's, where ``path`` is its routed copy)."""
     path = Path(path)
+    label = source or path.name
     try:
         root = ET.parse(path).getroot()
     except (OSError, ET.ParseError) as exc:
-        raise DemandFileError(f"demand.sumo_routes {path}: cannot be read as XML: {exc}") from None
+        raise DemandFileError(f"demand.sumo_routes {label}: cannot be read as XML: {exc}") from None
     routes = {r.get("id"): r.get("edges", "").split() for r in root.findall("route")}
     checked: set[tuple[str, ...]] = set()
 
@@ -162,8 +167,28 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
             return entry_speed_mps
         return _num(el, "departSpeed", where)
 
+    def position(el, where: str, first: str) -> float:  # departPos [m] where a number, else -1 (SUMO's base)
+        v = el.get("departPos")
+        if v is None or not v.replace(".", "", 1).isdigit():
+            return -1.0
+        x = _num(el, "departPos", where)
+        if net is not None and x > net.getEdge(first).getLength():
+            raise DemandFileError(f"{where}: departPos={v} lies beyond its first edge {first!r} "
+                                  f"({net.getEdge(first).getLength():.1f} m long)")
+        return x
+
+    def lane(el, where: str, first: str) -> str:  # departLane as SUMO reads it; "best" where not given
+        v = (el.get("departLane") or "best").strip()
+        if v.isdigit():
+            if net is not None and int(v) >= net.getEdge(first).getLaneNumber():
+                raise DemandFileError(f"{where}: departLane={v}, but its first edge {first!r} has "
+                                      f"{net.getEdge(first).getLaneNumber()} lane(s), numbered from 0")
+        elif v not in DEPART_LANES:
+            raise DemandFileError(f"{where}: departLane={v!r} is not a lane index or one of {', '.join(DEPART_LANES)}")
+        return v
+
     if not any(el.tag in ("vehicle", "trip", "flow") for el in root):
-        raise DemandFileError(f"demand.sumo_routes {path}: holds no <vehicle>, <trip> or <flow> (a SUMO route file "
+        raise DemandFileError(f"demand.sumo_routes {label}: holds no <vehicle>, <trip> or <flow> (a SUMO route file "
                               "is expected)")
     out = []
     for el in root:
@@ -171,15 +196,15 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
         if tag not in ("vehicle", "trip", "flow"):
             continue
         vid = el.get("id")
-        where = f"demand.sumo_routes {path.name}: <{tag} id={vid!r}>"
+        where = f"demand.sumo_routes {label}: <{tag} id={vid!r}>"
         if not vid:
-            raise DemandFileError(f"demand.sumo_routes {path.name}: a <{tag}> without an id")
+            raise DemandFileError(f"demand.sumo_routes {label}: a <{tag}> without an id")
         edges = edges_of(el, where)
         legs = crossings(edges, where)
         edges = tuple(edges)
-        v0 = speed(el, where)
+        v0, x0, ln = speed(el, where), position(el, where, edges[0]), lane(el, where, edges[0])
         if tag in ("vehicle", "trip"):
-            out.append((vid, legs, _num(el, "depart", where), v0, -1.0, edges))
+            out.append((vid, legs, _num(el, "depart", where), v0, x0, edges, ln))
             continue
         begin = _num(el, "begin", where, 0.0)
         end = min(_num(el, "end", where, math.inf), end_s)
@@ -221,8 +246,8 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
             raise DemandFileError(f"{where}: needs period, vehsPerHour, probability or number")
         if el.get("number") is not None and (el.get("period") is not None or el.get("vehsPerHour") is not None):
             times = times[:int(_num(el, "number", where))]
-        out += [(f"{vid}.{k}", legs, float(t), v0, -1.0, edges) for k, t in enumerate(times)]
+        out += [(f"{vid}.{k}", legs, float(t), v0, x0, edges, ln) for k, t in enumerate(times)]
     ids = [o[0] for o in out]
     if len(set(ids)) != len(ids):
-        raise DemandFileError(f"demand.sumo_routes {path.name}: vehicle ids repeat")
+        raise DemandFileError(f"demand.sumo_routes {label}: vehicle ids repeat")
     return out
