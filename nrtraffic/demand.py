@@ -249,8 +249,9 @@ class Demand:
                     if getattr(f, key) > 0 and turn not in turns:
                         raise ValueError(f"demand.flows.{f.approach}.{key}: the approach has no such movement "
                                          f"(it has {', '.join(sorted(turns))})")
-                share = np.array([getattr(f, "u_turn" if self.movement_table[n][1] == "uturn" else
-                                          self.movement_table[n][1], 0.0) for n in names], dtype=float)
+                kinds = [self.movement_table[n][1] for n in names]  # (two roads of one turn share its count)
+                share = np.array([getattr(f, "u_turn" if k == "uturn" else k, 0.0) / kinds.count(k) for k in kinds],
+                                 dtype=float)
                 out[f.approach] = (f.total_veh_h, names, share)
             return out
         if d.headway_s <= 0:
@@ -263,8 +264,9 @@ class Demand:
         """The global turning shares (``demand.turn_left``, ``turn_right``, the rest straight) of
         turning movements ``names`` of one approach; equal shares where they give none."""
         d = self.sc.demand
-        share = np.array([{"left": d.turn_left, "right": d.turn_right}.get(self.movement_table[n][1],
-                          1.0 - d.turn_left - d.turn_right) for n in names])
+        kinds = [self.movement_table[n][1] for n in names]  # (two roads of one turn share it)
+        share = np.array([{"left": d.turn_left, "right": d.turn_right}.get(k, 1.0 - d.turn_left - d.turn_right)
+                          / kinds.count(k) for k in kinds])
         return share if share.sum() > 0 else np.ones(len(names))
 
     def demand_veh_h(self, begin: float, end: float, approach: str | None = None) -> float:
