@@ -208,6 +208,10 @@ class Demand:
             edges += list(self.movement_table[leg][2][1:])
         return tuple(edges)
 
+    def used_movements(self) -> set[str]:
+        """The turning movements some departure takes."""
+        return {leg for _, route, *_ in self.departures() for leg in self.itineraries.get(route, (route,))}
+
     def first_approach(self, route: str) -> str:
         """The approach of the first junction a demand route enters."""
         return self.movement_table[self.itineraries.get(route, (route,))[0]][0]
@@ -261,11 +265,11 @@ class Demand:
         return out
 
     def default_shares(self, names: list[str]) -> np.ndarray:
-        """The global turning shares (``demand.turn_left``, ``turn_right``, the rest straight) of
-        turning movements ``names`` of one approach; equal shares where they give none."""
+        """The global turning shares (``demand.turn_left``, ``turn_right``, the rest straight, no
+        U-turn) of turning movements ``names`` of one approach; equal shares where they give none."""
         d = self.sc.demand
         kinds = [self.movement_table[n][1] for n in names]  # (two roads of one turn share it)
-        share = np.array([{"left": d.turn_left, "right": d.turn_right}.get(k, 1.0 - d.turn_left - d.turn_right)
+        share = np.array([{"left": d.turn_left, "right": d.turn_right, "uturn": 0.0}.get(k, 1.0 - d.turn_left - d.turn_right)
                           / kinds.count(k) for k in kinds])
         return share if share.sum() > 0 else np.ones(len(names))
 

@@ -180,6 +180,7 @@ class Engine:
         try:
             routes = sdir / "routes.rou.xml"
             departures = self.write_demand(routes)
+            self.layout.drop_unused_uturns(self.demand.used_movements())
             self.st = st = RunState(self.sc, self.params, self.layout, self.control, kernel=self.kernel,
                                     itineraries=self.demand.itineraries)
             self.admission = Admission(st, {vid: (mv, t, speed) for vid, mv, t, speed, *_ in departures},

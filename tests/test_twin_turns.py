@@ -1,6 +1,8 @@
-"""Two roads leaving one approach with the same turn (SUMO's "r" and "R", "l" and "L"): each is its
-own turning movement, with its own path and its own share of the approach's count, and a route file's
-vehicle on either is mapped to the one its route takes."""
+"""Movements as a real network has them. Two roads leaving one approach with the same turn (SUMO's
+"r" and "R", "l" and "L"): each is its own turning movement, with its own path and its own share of
+the approach's count, and a vehicle on either crosses on its own road. U-turns (SUMO's "t") are
+movements: counts for them are taken, and a U-turn that the car cannot drive refuses the junction
+only where some vehicle makes it."""
 
 import subprocess
 import sys
@@ -19,15 +21,15 @@ NODES = """<nodes>
 """
 EDGES = "<edges>\n" + "".join(
     f'  <edge id="{a}_{b}" from="{a}" to="{b}" numLanes="1" speed="13.89"/>\n'
-    for a, b in [("W", "C"), ("C", "E"), ("C", "N"), ("C", "NE"), ("S", "C")]) + "</edges>\n"
+    for a, b in [("W", "C"), ("C", "E"), ("C", "N"), ("C", "NE"), ("S", "C"), ("C", "S")]) + "</edges>\n"
 
 
-def _five_legs(tmp_path, extra=""):
+def _five_legs(tmp_path, extra="", turnarounds=False):
     d = copy_scenario("cross4", tmp_path / "sc", "rate_veh_h = 400.0", "rate_veh_h = 0.0", extra)
     (d / "n.nod.xml").write_text(NODES)
     (d / "n.edg.xml").write_text(EDGES)
     subprocess.run([sumo_binary("netconvert"), "-n", str(d / "n.nod.xml"), "-e", str(d / "n.edg.xml"), "-o",
-                    str(d / "net.net.xml"), "--no-turnarounds", "true"], check=True, capture_output=True)
+                    str(d / "net.net.xml"), "--no-turnarounds", str(not turnarounds).lower()], check=True, capture_output=True)
     return d
 
 
@@ -63,3 +65,31 @@ def test_a_vehicle_on_either_twin_crosses_on_its_own_road(tmp_path):
     v = pd.read_csv(out / "vehicles.csv").set_index("vehicle_id")
     assert v.loc[["east", "northeast"], "t_exit_s"].notna().all()
     assert (v.loc[["east", "northeast"], "plant_steps"] > 0).all()  # driven under control
+
+
+def test_u_turns_are_movements_refused_only_where_driven_and_the_car_cannot(tmp_path):
+    from nrtraffic import scenario
+    from nrtraffic.demand import Demand
+
+    flows = '\n[[demand.flows]]\napproach = "S_C"\nstraight = 300.0\nu_turn = 60.0\n'
+    d = _five_legs(tmp_path / "a", flows, turnarounds=True)
+    net = sumolib.net.readNet(str(d / "net.net.xml"))
+    assert any(c.getDirection() == "t" for ln in net.getEdge("S_C").getLanes() for c in ln.getOutgoing())
+    dem = Demand.of(scenario.load(d / "scenario.toml"), duration_s=3600.0)
+    uturn = [r for r, (a, t, _) in dem.movement_table.items() if a == "S_C" and t == "uturn"]
+    assert len(uturn) == 1 and dem.movement_table[uturn[0]][2][1] == "C_S"
+    rate, names, share = dem.approach_rates()["S_C"]
+    assert dict(zip(names, share))[uturn[0]] == 60.0
+    assert sum(1 for _, r, *_ in dem.departures() if r == uturn[0]) > 20  # about 60 in the hour
+    # one lane each way: the U-turn's radius is half a lane width, tighter than the car's smallest
+    out = tmp_path / "run"
+    r = subprocess.run([sys.executable, "-m", "runners.cli", "run", str(d / "scenario.toml"), "--duration", "600",
+                        "--out", str(out), "--no-progress"], cwd=ROOT, capture_output=True, text=True)
+    assert r.returncode == 2 and f"movement {uturn[0]}: its path turns on a radius of" in r.stderr, r.stderr
+    assert "leave the U-turn out of the demand" in r.stderr
+    # the same junction without U-turn demand runs: the U-turns no vehicle makes are left out
+    d2 = _five_legs(tmp_path / "b", '\n[[demand.flows]]\napproach = "S_C"\nstraight = 300.0\n', turnarounds=True)
+    out2 = tmp_path / "run2"
+    r = subprocess.run([sys.executable, "-m", "runners.cli", "run", str(d2 / "scenario.toml"), "--duration", "60",
+                        "--out", str(out2), "--no-progress"], cwd=ROOT, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr

@@ -65,7 +65,8 @@ def _read_net(path: str, mtime_ns: int, size: int):
 
 def junction_movements(net_path: Path, junction_id: str) -> tuple[list[JunctionMovement], tuple[float, float]]:
     """The movements through ``junction_id``, one per lane-to-lane connection of every incoming
-    lane (the first, where a lane connects to two lanes of the same road), and its position. Two
+    lane (the first, where a lane connects to two lanes of the same road), U-turns included, and its
+    position. Two
     roads reached from one incoming road with the same turn (SUMO's "l" and "L") are two turning
     movements (:attr:`JunctionMovement.twin`)."""
     net = read_net(net_path)
@@ -82,7 +83,7 @@ def junction_movements(net_path: Path, junction_id: str) -> tuple[list[JunctionM
             for con in lane.getOutgoing():
                 turn = TURNS.get(con.getDirection(), con.getDirection())
                 to = con.getTo().getID()
-                if turn == "uturn" or to in seen:
+                if to in seen:
                     continue
                 seen.add(to)
                 out.append(JunctionMovement(edge.getID(), to, turn, k, con.getToLane().getIndex(), len(lanes)))
