@@ -49,6 +49,7 @@ class Demand:
         self.sc, self.layout, self.seed, self.duration = sc, layout, int(seed), float(duration_s)
         self.itineraries: dict[str, tuple[str, ...]] = {}
         self.file_routes: dict[str, tuple[str, ...]] = {}  # a route file's route -> its edges, whole
+        self.notes: list[str] = []  # what the run does differently from the demand as given (summary warnings)
         self._departures: list[tuple] | None = None
 
     @classmethod
@@ -129,7 +130,8 @@ class Demand:
         named: dict[tuple, str] = {}
         variants: dict[tuple, int] = {}  # crossings -> routes named for them so far
         veh = []
-        for vid, legs, t, v0, pos, edges, lane in read:
+        classes: dict[str, int] = {}
+        for vid, legs, t, v0, pos, edges, lane, vclass in read:
             t -= t0
             if t < -1e-9:  # (before the run's start: SUMO does not insert it either)
                 continue
@@ -140,7 +142,13 @@ class Demand:
                 named[(legs, edges)] = key
                 self.itineraries[key] = legs
                 self.file_routes[key] = edges
+            classes[vclass] = classes.get(vclass, 0) + 1
             veh.append((vid, key, t, v0, pos, lane))
+        others = {k: n for k, n in classes.items() if k != "passenger"}
+        if veh:
+            self.notes.append(f"demand.sumo_routes: its {len(veh)} vehicles drive as nrtraffic's car (the file's vTypes "
+                              "are not used)" + (f", {', '.join(f'{n} of vClass {k}' for k, n in sorted(others.items()))} "
+                                                 "among them" if others else ""))
         return veh
 
     def _arrival_times(self, rng, rate: float, end: float) -> np.ndarray:

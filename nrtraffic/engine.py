@@ -439,7 +439,7 @@ class Engine:
             vehicles_spawned=sum(r.status != "waiting" for r in records.values()),
             drivers={r.vehicle_id: r.driver for r in records.values()},
             wall_breakdown=self.wall_breakdown, versions=(__version__, sumo_version()),
-            begin_s=self.sc.general.begin_s)
+            begin_s=self.sc.general.begin_s, notes=tuple(self.demand.notes) if self.demand is not None else ())
         status = ("ok" if error is None else "gridlock" if isinstance(error, Gridlock) else "failed") \
             if final else "running"
         demand = self.demand.demand_veh_h if self.demand is not None else None  # (None: stopped while it was built)

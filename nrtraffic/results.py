@@ -499,6 +499,7 @@ class RunFacts:
     wall_breakdown: dict
     versions: tuple[str, str]  # nrtraffic's, SUMO's
     begin_s: float = 0.0  # SUMO's clock at the run's start (scenario.begin_s); the times above are from it
+    notes: tuple = ()  # what the run did differently from the demand as given (warnings)
 
 
 def run_summary(f: RunFacts, veh: pd.DataFrame, trips: dict, demand_veh_h, status: str,
@@ -555,7 +556,7 @@ def run_summary(f: RunFacts, veh: pd.DataFrame, trips: dict, demand_veh_h, statu
         "seed": f.seed,
         "status": status,
         "error": None if error is None else f"{type(error).__name__}: {error}",
-        "warnings": warnings,
+        "warnings": warnings + list(f.notes),
         "begin_s": f.begin_s,
         "sim_time_s": sim_t,
         "wall_time_s": wall,

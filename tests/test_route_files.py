@@ -15,8 +15,9 @@ import sumolib
 from conftest import ROOT, copy_scenario
 
 ROUTES = """<routes>
+    <vType id="lorry" vClass="truck" length="12"/>
     <trip id="through" depart="2" from="W_J1" to="J3_E"/>
-    <vehicle id="side" depart="4" departPos="50" departLane="0"><route edges="N1_J1 J1_J2 J2_S2"/></vehicle>
+    <vehicle id="side" type="lorry" depart="4" departPos="50" departLane="0"><route edges="N1_J1 J1_J2 J2_S2"/></vehicle>
     <flow id="west" from="E_J3" to="J2_N2" begin="0" end="40" vehsPerHour="180"/>
     <trip id="via" depart="6" from="S3_J3" to="J1_W" via="J3_J2"/>
 </routes>
@@ -76,6 +77,9 @@ def test_a_route_file_drives_a_corridor_each_vehicle_on_its_whole_route(tmp_path
     assert legs["via"] == ["J3", "J2", "J1"]
     assert all(legs[f] == ["J3", "J2"] for f in flow)
     assert v["t_exit_s"].notna().all() and (v["plant_steps"] > 0).all()
+    # the run says that the file's vehicles, its truck too, drive as nrtraffic's car
+    summary = json.loads((out / "summary.json").read_text())
+    assert any("its 5 vehicles drive as nrtraffic's car" in w and "1 of vClass truck" in w for w in summary["warnings"])
     # the run folder holds its route file: it replays from there alone
     assert (out / "sumo" / "r.rou.xml").read_text() == ROUTES
     (d / "r.rou.xml").unlink()

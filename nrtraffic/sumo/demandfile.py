@@ -113,7 +113,8 @@ def routed(path: Path, net_path: Path) -> Path:
 def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.random.Generator, end_s: float,
                      entry_speed_mps: float, net=None, source: str | None = None) -> list[tuple]:
     """Departures ``(vehicle_id, crossings, depart_s, depart_speed_mps, depart_pos_m, edges,
-    depart_lane)`` of the file, up to ``end_s`` [s] for open-ended flows: ``crossings`` the
+    depart_lane, vclass)`` of the file (``vclass``: SUMO's vClass of its ``<vType>``, "passenger"
+    where it has none), up to ``end_s`` [s] for open-ended flows: ``crossings`` the
     movements its route takes, in order (``movements`` maps ``(incoming edge, outgoing edge)`` to a
     movement name), ``edges`` its whole route. A route that crosses no controlled junction is an
     error naming the element; with ``net`` (a sumolib network) so is a route over an edge the
@@ -130,6 +131,7 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
     except (OSError, ET.ParseError) as exc:
         raise DemandFileError(f"demand.sumo_routes {label}: cannot be read as XML: {exc}") from None
     routes = {r.get("id"): r.get("edges", "").split() for r in root.findall("route")}
+    vclass = {t.get("id"): t.get("vClass", "passenger") for t in root.iter("vType")}
     checked: set[tuple[str, ...]] = set()
 
     def crossings(edges: list[str], where: str) -> tuple[str, ...]:
@@ -203,8 +205,9 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
         legs = crossings(edges, where)
         edges = tuple(edges)
         v0, x0, ln = speed(el, where), position(el, where, edges[0]), lane(el, where, edges[0])
+        kind = vclass.get(el.get("type"), "passenger")
         if tag in ("vehicle", "trip"):
-            out.append((vid, legs, _num(el, "depart", where), v0, x0, edges, ln))
+            out.append((vid, legs, _num(el, "depart", where), v0, x0, edges, ln, kind))
             continue
         begin = _num(el, "begin", where, 0.0)
         end = min(_num(el, "end", where, math.inf), end_s)
@@ -246,7 +249,7 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
             raise DemandFileError(f"{where}: needs period, vehsPerHour, probability or number")
         if el.get("number") is not None and (el.get("period") is not None or el.get("vehsPerHour") is not None):
             times = times[:int(_num(el, "number", where))]
-        out += [(f"{vid}.{k}", legs, float(t), v0, x0, edges, ln) for k, t in enumerate(times)]
+        out += [(f"{vid}.{k}", legs, float(t), v0, x0, edges, ln, kind) for k, t in enumerate(times)]
     ids = [o[0] for o in out]
     if len(set(ids)) != len(ids):
         raise DemandFileError(f"demand.sumo_routes {label}: vehicle ids repeat")
