@@ -114,8 +114,8 @@ class Demand:
     def _file_departures(self, rng) -> list[tuple]:
         """``demand.sumo_routes``: the files' departures (trips routed by duarouter) from
         ``scenario.begin_s`` on, measured from it, each on its whole route, named by the movements
-        it takes joined with "+" (and "#k" where routes with the same crossings differ elsewhere);
-        :attr:`itineraries` and :attr:`file_routes`."""
+        it takes joined with "+" and "~k" (the k-th route with those crossings); :attr:`itineraries`
+        and :attr:`file_routes`."""
         from nrtraffic.sumo.demandfile import merged, read_sumo_demand, routed
         from nrtraffic.sumo.network import read_net
 
@@ -138,7 +138,7 @@ class Demand:
             key = named.get((legs, edges))
             if key is None:
                 k = variants[legs] = variants.get(legs, -1) + 1
-                key = "+".join(legs) + (f"#{k}" if k else "")
+                key = f"{'+'.join(legs)}~{k}"  # (never a movement's own name: [[vehicles]] keep theirs)
                 named[(legs, edges)] = key
                 self.itineraries[key] = legs
                 self.file_routes[key] = edges
