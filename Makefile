@@ -1,5 +1,6 @@
 # Set-up and everyday targets. `make run` and `make test` work on a fresh machine with Python >= 3.11:
-# they create .venv, install nrtraffic with SUMO from PyPI, and run.
+# they create .venv, install nrtraffic with SUMO from PyPI, and run. `make docs` builds the user's
+# guide (docs/, mkdocs.yml) into site/.
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
@@ -7,7 +8,7 @@ STAMP  := $(VENV)/.installed
 SCENARIO ?= sumo_scenarios/cross4/scenario.toml
 OUT    ?= runs
 
-.PHONY: install run test paper bench nets golden clean clean-cache
+.PHONY: install run test docs paper bench nets golden clean clean-cache
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -22,6 +23,15 @@ run: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest
+
+# the user's guide: MkDocs (Material) into site/; --strict fails on a broken link, anchor or page
+DOCS_STAMP := $(VENV)/.installed-docs
+$(DOCS_STAMP): $(STAMP) pyproject.toml
+	$(BIN)/python -m pip install --quiet -e ".[docs]"
+	touch $(DOCS_STAMP)
+
+docs: $(DOCS_STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir site
 
 paper: $(STAMP)
 	$(BIN)/nrtraffic paper all --out $(OUT)/paper
@@ -48,4 +58,4 @@ clean-cache:
 	find nrtraffic -name '*.nbi' -delete -o -name '*.nbc' -delete
 
 clean: clean-cache
-	rm -rf $(VENV) $(OUT) .pytest_cache
+	rm -rf $(VENV) $(OUT) .pytest_cache site

@@ -39,14 +39,17 @@ class Demand:
     """The run's departures and the demand of a window, from the scenario and the junctions'
     :class:`~nrtraffic.junction.Layout` (no SUMO run).
 
-    :meth:`departures` are ``(vehicle_id, route, depart_s, depart_speed_mps, depart_pos_m, type)``
-    in order of departure; ``route`` is a turning movement, or on a corridor a trip through several
-    junctions (:attr:`itineraries`); ``type`` is "auto" or "human".
+    :meth:`departures` are ``(vehicle_id, route, depart_s, depart_speed_mps, depart_pos_m, type,
+    depart_lane)`` in order of departure; ``route`` is a turning movement, or on a corridor a trip
+    through several junctions (:attr:`itineraries`); ``type`` is "auto" or "human"; ``depart_lane``
+    SUMO's departLane ("best" unless a route file gives one).
     """
 
     def __init__(self, sc, layout, seed: int, duration_s: float):
         self.sc, self.layout, self.seed, self.duration = sc, layout, int(seed), float(duration_s)
         self.itineraries: dict[str, tuple[str, ...]] = {}
+        self.file_routes: dict[str, tuple[str, ...]] = {}  # a route file's route -> its edges, whole
+        self.notes: list[str] = []  # what the run does differently from the demand as given (summary warnings)
         self._departures: list[tuple] | None = None
 
     @classmethod
@@ -81,11 +84,7 @@ class Demand:
         rng = np.random.default_rng(self.seed)
         veh = []
         if d.sumo_routes:
-            from nrtraffic.sumo.demandfile import read_sumo_demand
-
-            end = d.end_s if d.end_s > 0 else (self.duration if self.duration > 0 else math.inf)
-            by_edges = {(r[0], r[1]): name for name, (_, _, r) in self.movement_table.items()}
-            veh = read_sumo_demand(self.sc.base_dir / d.sumo_routes, by_edges, rng, end, d.entry_speed_mps)
+            veh = self._file_departures(rng)
         rates = self.approach_rates() if not d.sumo_routes else {}
         if rates:
             end = d.end_s if d.end_s > 0 else (self.duration if self.duration > 0 else math.inf)
@@ -109,7 +108,48 @@ class Demand:
         u = np.random.default_rng([self.seed, SHARE_STREAM]).random(len(veh))
         share = d.controlled_share
         listed = {v.id for v in self.sc.vehicles}
-        return [(*v, "human" if (x >= share and v[0] not in listed) else "auto") for v, x in zip(veh, u)]
+        return [(*v[:5], "human" if (x >= share and v[0] not in listed) else "auto", v[5] if len(v) > 5 else "best")
+                for v, x in zip(veh, u)]
+
+    def _file_departures(self, rng) -> list[tuple]:
+        """``demand.sumo_routes``: the files' departures (trips routed by duarouter) from
+        ``scenario.begin_s`` on, measured from it, each on its whole route, named by the movements
+        it takes joined with "+" and "~k" (the k-th route with those crossings); :attr:`itineraries`
+        and :attr:`file_routes`."""
+        from nrtraffic.sumo.demandfile import merged, read_sumo_demand, routed
+        from nrtraffic.sumo.network import read_net
+
+        d = self.sc.demand
+        t0 = self.sc.general.begin_s  # the file's times are SUMO's clock: the run starts at t0
+        end = d.end_s if d.end_s > 0 else (self.duration if self.duration > 0 else math.inf)
+        by_edges = {(r[0], r[1]): name for name, (_, _, r) in self.movement_table.items()}
+        net = read_net(self.sc.network_path)
+        files = d.route_files(self.sc.base_dir)
+        read = read_sumo_demand(routed(merged(files), self.sc.network_path), by_edges, rng, t0 + end, d.entry_speed_mps,
+                                net=net, source=", ".join(f.name for f in files))
+        named: dict[tuple, str] = {}
+        variants: dict[tuple, int] = {}  # crossings -> routes named for them so far
+        veh = []
+        classes: dict[str, int] = {}
+        for vid, legs, t, v0, pos, edges, lane, vclass in read:
+            t -= t0
+            if t < -1e-9:  # (before the run's start: SUMO does not insert it either)
+                continue
+            key = named.get((legs, edges))
+            if key is None:
+                k = variants[legs] = variants.get(legs, -1) + 1
+                key = f"{'+'.join(legs)}~{k}"  # (never a movement's own name: [[vehicles]] keep theirs)
+                named[(legs, edges)] = key
+                self.itineraries[key] = legs
+                self.file_routes[key] = edges
+            classes[vclass] = classes.get(vclass, 0) + 1
+            veh.append((vid, key, t, v0, pos, lane))
+        others = {k: n for k, n in classes.items() if k != "passenger"}
+        if veh:
+            self.notes.append(f"demand.sumo_routes: its {len(veh)} vehicles drive as nrtraffic's car (the file's vTypes "
+                              "are not used)" + (f", {', '.join(f'{n} of vClass {k}' for k, n in sorted(others.items()))} "
+                                                 "among them" if others else ""))
+        return veh
 
     def _arrival_times(self, rng, rate: float, end: float) -> np.ndarray:
         """One approach's departure times [s] at ``rate`` [veh/h], scaled by the intervals."""
@@ -150,6 +190,9 @@ class Demand:
             shares[appr] = (names, share / share.sum())
         out = []
         for vid, first, *rest in veh:
+            if first in self.file_routes:  # (a route file's vehicle: its crossings are its route's)
+                out.append((vid, first, *rest))
+                continue
             legs = [first]
             while len(legs) <= len(self.layout.junctions):
                 edge_out = self.movement_table[legs[-1]][2][-1]
@@ -165,11 +208,21 @@ class Demand:
     def route_edges(self, route: str) -> tuple[str, ...]:
         """The edges of a demand route: a turning movement's, or a corridor trip's (:attr:`itineraries`),
         from the start of the road that feeds its first approach (``Layout.feeders``)."""
+        if route in self.file_routes:
+            return self.file_routes[route]
         legs = self.itineraries.get(route, (route,))
         edges = [*self.layout.feeders.get(legs[0], ()), *self.movement_table[legs[0]][2]]
         for leg in legs[1:]:
             edges += list(self.movement_table[leg][2][1:])
         return tuple(edges)
+
+    def used_movements(self) -> set[str]:
+        """The turning movements some departure takes."""
+        return {leg for _, route, *_ in self.departures() for leg in self.itineraries.get(route, (route,))}
+
+    def first_approach(self, route: str) -> str:
+        """The approach of the first junction a demand route enters."""
+        return self.movement_table[self.itineraries.get(route, (route,))[0]][0]
 
     def _uncontrolled_hint(self, edges: list[str]) -> str:
         """Where ``edges`` lead into junctions of the network that the scenario does not control,
@@ -208,8 +261,9 @@ class Demand:
                     if getattr(f, key) > 0 and turn not in turns:
                         raise ValueError(f"demand.flows.{f.approach}.{key}: the approach has no such movement "
                                          f"(it has {', '.join(sorted(turns))})")
-                share = np.array([getattr(f, "u_turn" if self.movement_table[n][1] == "uturn" else
-                                          self.movement_table[n][1], 0.0) for n in names], dtype=float)
+                kinds = [self.movement_table[n][1] for n in names]  # (two roads of one turn share its count)
+                share = np.array([getattr(f, "u_turn" if k == "uturn" else k, 0.0) / kinds.count(k) for k in kinds],
+                                 dtype=float)
                 out[f.approach] = (f.total_veh_h, names, share)
             return out
         if d.headway_s <= 0:
@@ -219,11 +273,12 @@ class Demand:
         return out
 
     def default_shares(self, names: list[str]) -> np.ndarray:
-        """The global turning shares (``demand.turn_left``, ``turn_right``, the rest straight) of
-        turning movements ``names`` of one approach; equal shares where they give none."""
+        """The global turning shares (``demand.turn_left``, ``turn_right``, the rest straight, no
+        U-turn) of turning movements ``names`` of one approach; equal shares where they give none."""
         d = self.sc.demand
-        share = np.array([{"left": d.turn_left, "right": d.turn_right}.get(self.movement_table[n][1],
-                          1.0 - d.turn_left - d.turn_right) for n in names])
+        kinds = [self.movement_table[n][1] for n in names]  # (two roads of one turn share it)
+        share = np.array([{"left": d.turn_left, "right": d.turn_right, "uturn": 0.0}.get(k, 1.0 - d.turn_left - d.turn_right)
+                          / kinds.count(k) for k in kinds])
         return share if share.sum() > 0 else np.ones(len(names))
 
     def demand_veh_h(self, begin: float, end: float, approach: str | None = None) -> float:
@@ -231,8 +286,8 @@ class Demand:
         entry approach's rate times the intervals' scale, averaged over the window (not the sampled
         arrivals); with ``demand.sumo_routes``, the file's departures in the window."""
         if self.sc.demand.sumo_routes:
-            times = [t for _, mv, t, *_ in self.departures()
-                     if begin <= t <= end and (approach is None or self.movement_table[mv][0] == approach)]
+            times = [t for _, route, t, *_ in self.departures()
+                     if begin <= t <= end and (approach is None or self.first_approach(route) == approach)]
             return len(times) / (end - begin) * 3600.0 if end > begin else 0.0
         if approach is not None and approach not in self.layout.entry_approaches:
             return math.nan  # a corridor's inner approach: fed by the junction upstream, not by demand
@@ -261,5 +316,5 @@ class Demand:
             types.append(VehicleType("human", params.length, params.width, h.min_gap_m, h.accel_mps2, h.decel_mps2,
                                      v_max, h.sigma, h.tau_s, h.speed_dev, h.car_follow_model))
         routes = {k: self.route_edges(k) for k in [*self.movement_table, *self.itineraries]}
-        write_routes(path, types, routes, demand)
+        write_routes(path, types, routes, demand, t0_s=self.sc.general.begin_s)
         return demand

@@ -180,6 +180,7 @@ class Engine:
         try:
             routes = sdir / "routes.rou.xml"
             departures = self.write_demand(routes)
+            self.layout.drop_unused_uturns(self.demand.used_movements())
             self.st = st = RunState(self.sc, self.params, self.layout, self.control, kernel=self.kernel,
                                     itineraries=self.demand.itineraries)
             self.admission = Admission(st, {vid: (mv, t, speed) for vid, mv, t, speed, *_ in departures},
@@ -196,7 +197,7 @@ class Engine:
                 tripinfo=self.workdir / "tripinfo.xml" if o.sumo_tripinfo else None,
                 collisions=self.workdir / "collisions.xml" if o.sumo_collisions else None,
                 fcd=self.workdir / "fcd.xml" if o.sumo_fcd else None,
-                extra_args=self.sc.sumo.extra_args + detectors, gui=self.gui)
+                extra_args=self.sc.sumo.extra_args + detectors, gui=self.gui, begin_s=self.sc.general.begin_s)
             with st.sumo:
                 self._build_junctions(st)
                 self._loop()
@@ -438,7 +439,8 @@ class Engine:
             waiting_to_enter=self._waiting_to_enter(),
             vehicles_spawned=sum(r.status != "waiting" for r in records.values()),
             drivers={r.vehicle_id: r.driver for r in records.values()},
-            wall_breakdown=self.wall_breakdown, versions=(__version__, sumo_version()))
+            wall_breakdown=self.wall_breakdown, versions=(__version__, sumo_version()),
+            begin_s=self.sc.general.begin_s, notes=tuple(self.demand.notes) if self.demand is not None else ())
         status = ("ok" if error is None else "gridlock" if isinstance(error, Gridlock) else "failed") \
             if final else "running"
         demand = self.demand.demand_veh_h if self.demand is not None else None  # (None: stopped while it was built)
@@ -446,7 +448,7 @@ class Engine:
         # every table from the same unrounded records, then each figure to its resolution
         extra = {"movements": round_frame(movements_of(veh, summary, self.workdir / "movements.json"))}
         if final and self.sc.controlled_junctions() and self.demand is not None:
-            queues = parse_queues(self.workdir / "queues.xml")
+            queues = parse_queues(self.workdir / "queues.xml", t0_s=self.sc.general.begin_s)
             extra["approaches"] = round_frame(approach_table(veh, queues, self.layout.approaches,
                                                              self.demand.demand_veh_h, summary["measure_from_s"],
                                                              summary["measure_to_s"]))

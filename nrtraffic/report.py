@@ -40,7 +40,7 @@ def run_figures(run_dir: Path) -> list[Path]:
         if (table["vehicles"] > 0).any():
             made.append(plots.delay_by_movement(table, run_dir / "delays.png", is_signalised(summary.get("control"))))
     if (run_dir / "queues.xml").is_file():
-        series = parse_queues(run_dir / "queues.xml")
+        series = parse_queues(run_dir / "queues.xml", t0_s=summary.get("begin_s") or 0.0)
         if len(series):
             made.append(plots.queues(series, run_dir / "queues.png", summary.get("measure_from_s") or 0.0))
     if doc.get("movements") and (run_dir / "trajectories.parquet").is_file():

@@ -288,11 +288,12 @@ def write_vehicles(path: Path, vehicles: pd.DataFrame) -> None:
 QUEUE_COLUMNS = ["approach", "begin_s", "end_s", "mean_queue_veh", "max_queue_veh", "mean_queue_m", "max_queue_m"]
 
 
-def parse_queues(path: Path) -> pd.DataFrame:
+def parse_queues(path: Path, t0_s: float = 0.0) -> pd.DataFrame:
     """Queues per approach and detector period from SUMO's lane-area detectors (``queues.xml``,
     detector ids ``queue|approach|lane``): ``mean_queue_veh`` is SUMO's time-mean of the longest jam
     (``meanMaxJamLengthInVehicles``), ``max_queue_veh`` the longest (``maxJamLengthInVehicles``),
-    each summed over the approach's lanes; the same in metres."""
+    each summed over the approach's lanes; the same in metres. Periods are measured from the run's
+    start, SUMO's clock ``t0_s`` (``scenario.begin_s``) [s]."""
     import xml.etree.ElementTree as ET
 
     if not Path(path).is_file():
@@ -301,7 +302,7 @@ def parse_queues(path: Path) -> pd.DataFrame:
         root = ET.parse(path).getroot()
     except ET.ParseError:  # a run that stopped early may leave it unterminated
         return pd.DataFrame(columns=QUEUE_COLUMNS)
-    rows = [(iv.get("id").split("|")[1], float(iv.get("begin")), float(iv.get("end")),
+    rows = [(iv.get("id").split("|")[1], float(iv.get("begin")) - t0_s, float(iv.get("end")) - t0_s,
              float(iv.get("meanMaxJamLengthInVehicles")), float(iv.get("maxJamLengthInVehicles")),
              float(iv.get("meanMaxJamLengthInMeters")), float(iv.get("maxJamLengthInMeters")))
             for iv in root.iter("interval")]
@@ -619,6 +620,8 @@ class RunFacts:
     drivers: dict  # vehicle -> "automated" or "human"
     wall_breakdown: dict
     versions: tuple[str, str]  # nrtraffic's, SUMO's
+    begin_s: float = 0.0  # SUMO's clock at the run's start (scenario.begin_s); the times above are from it
+    notes: tuple = ()  # what the run did differently from the demand as given (warnings)
 
 
 def run_summary(f: RunFacts, veh: pd.DataFrame, trips: dict, demand_veh_h, status: str,
@@ -693,7 +696,8 @@ def run_summary(f: RunFacts, veh: pd.DataFrame, trips: dict, demand_veh_h, statu
         "seed": f.seed,
         "status": status,
         "error": None if error is None else f"{type(error).__name__}: {error}",
-        "warnings": warnings,
+        "warnings": warnings + list(f.notes),
+        "begin_s": f.begin_s,
         "sim_time_s": sim_t,
         "wall_time_s": wall,
         "real_time_factor": sim_t / wall if wall > 0 else None,

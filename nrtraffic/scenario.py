@@ -38,6 +38,8 @@ class General:
     network: str = ""  # path of the .net.xml, relative to the scenario file (required)
     seed: int = 1  # random seed of arrivals and SUMO (--seed overrides it)
     duration_s: float = 0.0  # simulated time; 0 runs until every vehicle has left
+    sumocfg: str = ""  # a SUMO configuration (.sumocfg) to take the network, route files, begin and end from (keys given here win)
+    begin_s: float = 0.0  # SUMO's clock at the run's start (--begin), e.g. 25200 for 07:00; route files give absolute times, every other time of the run is measured from it
 
     def validate(self) -> None:
         if not self.network:
@@ -207,7 +209,7 @@ class Demand:
     end_s: float = 0.0  # last departure time; 0 = scenario.duration_s
     flows: tuple[DemandFlow, ...] = ()  # turning movement counts per approach; replace rate_veh_h and the shares
     intervals: tuple[DemandInterval, ...] = ()  # periods with scaled demand (a peak)
-    sumo_routes: str = ""  # a SUMO demand file (.rou.xml: flows, trips, vehicles) instead of the keys above
+    sumo_routes: str = ""  # SUMO demand files (.rou.xml: flows, trips, vehicles; several separated by commas, as SUMO's route-files) instead of the keys above
     controlled_share: float = 1.0  # share of the vehicles that are controlled; the others are [human] drivers
 
     def validate(self) -> None:
@@ -240,6 +242,10 @@ class Demand:
             if i.begin_s <= t < i.end_s:
                 return i.scale
         return 1.0
+
+    def route_files(self, base_dir: Path) -> list[Path]:
+        """The files of ``sumo_routes`` (comma-separated), resolved against ``base_dir``."""
+        return [(Path(base_dir) / f.strip()).resolve() for f in self.sumo_routes.split(",") if f.strip()]
 
     def breakpoints(self, begin: float, end: float) -> list[float]:
         """``begin``, every interval boundary inside ``(begin, end)``, ``end``."""
@@ -594,7 +600,7 @@ def _coerce(section: str, key: str, typ, value):
 # the work per simulated second (steps per step) are checked in Controller.validate and check_work.
 _DAY_S = 86400.0
 RANGES: dict[str, dict[str, tuple[float, float]]] = {
-    "scenario": {"seed": (0, MAX_SEED), "duration_s": (0.0, MAX_DURATION_S)},
+    "scenario": {"seed": (0, MAX_SEED), "duration_s": (0.0, MAX_DURATION_S), "begin_s": (0.0, 1e8)},
     "sumo": {"step_length_s": (0.001, 1.0), "lateral_resolution_m": (0.0, 5.0)},
     "controller": {"plant_step_s": (1e-4, 0.1), "predictor_step_s": (1e-4, 1.0), "horizon_s": (1e-3, 20.0),
                    "alpha": (1e-3, 1e5), "damping": (0.0, 1.0), "predictor_mass_factor": (0.1, 10.0),
@@ -684,6 +690,59 @@ def parse_override(text: str) -> tuple[str, str, Any]:
     return section, key, value
 
 
+def _from_sumocfg(data: dict, base_dir: Path, allow_outside: bool) -> None:
+    """``scenario.sumocfg``: the network (``net-file``), route files (``route-files``, as
+    ``demand.sumo_routes`` where the scenario gives no demand of its own), ``begin`` (as
+    ``scenario.begin_s``) and ``end`` (``scenario.duration_s`` = end - begin) of a SUMO configuration
+    filled into ``data`` where it does not give them; its paths are relative to its own folder."""
+    import os
+    import xml.etree.ElementTree as ET
+
+    name = data["scenario"]["sumocfg"]
+    if not isinstance(name, str):
+        raise ScenarioError("scenario.sumocfg must be a string (the path of a .sumocfg)")
+    cfg = (base_dir / name).resolve()
+    if not allow_outside and not cfg.is_relative_to(base_dir.resolve()):
+        raise ScenarioError(f"scenario.sumocfg = {name!r} lies outside the scenario's folder (allowed only with "
+                            "--allow-outside)")
+    if not cfg.is_file():
+        raise ScenarioError(f"scenario.sumocfg: file not found: {cfg}")
+    try:
+        root = ET.parse(cfg).getroot()
+    except (OSError, ET.ParseError) as exc:
+        raise ScenarioError(f"scenario.sumocfg {name}: cannot be read as a SUMO configuration: {exc}") from None
+
+    def value(*keys: str) -> str | None:
+        for key in keys:
+            el = next(root.iter(key), None)
+            if el is not None and el.get("value") is not None:
+                return el.get("value").strip()
+        return None
+
+    def rel(v: str) -> str:
+        return Path(os.path.relpath(cfg.parent / v.strip(), base_dir.resolve())).as_posix()
+
+    sc, demand = data["scenario"], data.setdefault("demand", {})
+    net = value("net-file", "n")
+    if net and "network" not in sc:
+        sc["network"] = rel(net)
+    routes = value("route-files", "r")
+    if routes and "sumo_routes" not in demand and not demand.get("flows") and not demand.get("rate_veh_h"):
+        demand["sumo_routes"] = ",".join(rel(r) for r in routes.split(",") if r.strip())
+    for key, cfg_key in (("begin_s", "begin"), ("end", "end")):
+        v = value(cfg_key, cfg_key[0])
+        if v is None:
+            continue
+        try:
+            t = float(v) if ":" not in v else sum(float(x) * f for x, f in zip(reversed(v.split(":")), (1, 60, 3600, 86400)))
+        except ValueError:
+            raise ScenarioError(f"scenario.sumocfg {name}: <{cfg_key} value={v!r}> is not a time") from None
+        if key == "begin_s":
+            sc.setdefault("begin_s", t)
+        elif "duration_s" not in sc and t >= 0:
+            sc["duration_s"] = max(t - float(sc.get("begin_s", 0.0)), 0.0)
+
+
 def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...] = (),
               allow_outside: bool = False) -> Scenario:
     """Validate a parsed scenario table (plus ``section.key=value`` overrides). The network must lie
@@ -694,6 +753,8 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
         if section not in _SECTIONS:
             raise ScenarioError(f"--set {ov!r}: unknown section {section!r}")
         data.setdefault(section, {})[key] = value
+    if isinstance(data.get("scenario"), dict) and data["scenario"].get("sumocfg"):
+        _from_sumocfg(data, Path(base_dir), allow_outside)
     unknown = set(data) - set(_SECTIONS) - {"approaches", "vehicles", "junctions"}
     if unknown:
         raise ScenarioError(
@@ -735,15 +796,15 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
         raise ScenarioError(f"scenario.network = {sc.general.network!r} lies outside the scenario's folder "
                             f"{sc.base_dir} (allowed only with --allow-outside)")
     if sc.demand.sumo_routes:
-        routes = (sc.base_dir / sc.demand.sumo_routes).resolve()
-        if not sc.junction.id:
-            raise ScenarioError("demand.sumo_routes needs a [junction] id (its vehicles are mapped to its movements; "
-                                "not [[junctions]])")
-        if not allow_outside and not routes.is_relative_to(sc.base_dir):
-            raise ScenarioError(f"demand.sumo_routes = {sc.demand.sumo_routes!r} lies outside the scenario's folder "
-                                f"{sc.base_dir} (allowed only with --allow-outside)")
-        if not routes.is_file():
-            raise ScenarioError(f"demand.sumo_routes: file not found: {routes}")
+        if not sc.controlled_junctions():
+            raise ScenarioError("demand.sumo_routes needs a [junction] id or [[junctions]] (its vehicles' crossings are "
+                                "the movements of those junctions that their routes take)")
+        for routes in sc.demand.route_files(sc.base_dir):
+            if not allow_outside and not routes.is_relative_to(sc.base_dir):
+                raise ScenarioError(f"demand.sumo_routes = {sc.demand.sumo_routes!r} lies outside the scenario's folder "
+                                    f"{sc.base_dir} (allowed only with --allow-outside)")
+            if not routes.is_file():
+                raise ScenarioError(f"demand.sumo_routes: file not found: {routes}")
         if sc.demand.flows or sc.demand.rate_veh_h > 0:
             raise ScenarioError("demand.sumo_routes replaces demand.flows and demand.rate_veh_h: give one of them")
     if sc.demand.controlled_share < 1.0:
@@ -820,17 +881,21 @@ def load(path: str | Path, overrides: list[str] | tuple[str, ...] = (), allow_ou
                             "flat lists)") from None
 
 
-def dumps(sc: Scenario, network: str | None = None) -> str:
-    """The resolved configuration as TOML text; ``network`` replaces the network path (a copy
-    placed beside the file)."""
+def dumps(sc: Scenario, network: str | None = None, sumo_routes: str | None = None) -> str:
+    """The resolved configuration as TOML text; ``network`` and ``sumo_routes`` replace the paths
+    of the network and the route files (copies placed beside the file). ``scenario.sumocfg`` is
+    left out: what it gave is in the other keys."""
     import tomli_w
 
     d = sc.to_dict()
+    d["scenario"].pop("sumocfg", None)
     if network is not None:
         d["scenario"]["network"] = network
+    if sumo_routes is not None:
+        d["demand"]["sumo_routes"] = sumo_routes
     return tomli_w.dumps(d)
 
 
-def dump(sc: Scenario, path: Path, network: str | None = None) -> None:
+def dump(sc: Scenario, path: Path, network: str | None = None, sumo_routes: str | None = None) -> None:
     """Write the resolved configuration (``scenario.resolved.toml``), see :func:`dumps`."""
-    path.write_text(dumps(sc, network))
+    path.write_text(dumps(sc, network, sumo_routes))

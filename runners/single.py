@@ -103,6 +103,22 @@ def prepare_run_dir(sc: scenario_mod.Scenario, out: Path) -> Path:
     dst = out / "sumo" / net.name
     if net.resolve() != dst.resolve():
         shutil.copyfile(net, dst)
+    for src, name in route_copies(sc):
+        if src.resolve() != (out / name).resolve():
+            shutil.copyfile(src, out / name)
+    return out
+
+
+def route_copies(sc: scenario_mod.Scenario) -> list[tuple[Path, str]]:
+    """The scenario's route files (``demand.sumo_routes``) and the names of their copies in a run
+    directory (``sumo/``, beside the network's), so that the run can be replayed from it alone."""
+    out, used = [], {sc.network_path.name}
+    for f in (sc.demand.route_files(sc.base_dir) if sc.demand.sumo_routes else []):
+        name, k = f.name, 1
+        while name in used:
+            name, k = f"{k}_{f.name}", k + 1
+        used.add(name)
+        out.append((f, f"sumo/{name}"))
     return out
 
 
@@ -121,8 +137,10 @@ def resolve(sc: scenario_mod.Scenario, seed: int | None, duration_s: float | Non
 
 
 def resolved_text(sc: scenario_mod.Scenario, seed: int | None, duration_s: float | None) -> str:
-    """``scenario.resolved.toml`` of a run of ``sc`` (its network copied into ``sumo/``)."""
-    return scenario_mod.dumps(resolve(sc, seed, duration_s), network=f"sumo/{sc.network_path.name}")
+    """``scenario.resolved.toml`` of a run of ``sc`` (its network and route files copied into
+    ``sumo/``; what a ``scenario.sumocfg`` gave is written out as keys)."""
+    return scenario_mod.dumps(resolve(sc, seed, duration_s), network=f"sumo/{sc.network_path.name}",
+                              sumo_routes=",".join(name for _, name in route_copies(sc)) or None)
 
 
 # the run directory's list of what the run created in it (``--force`` removes those, and nothing else)

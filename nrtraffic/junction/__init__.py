@@ -137,6 +137,14 @@ class Layout:
                 self.movement_junction[a.name] = ""
         self.entry_approaches = {a for a, _, _ in self.movement_table.values() if a not in self.upstream_junction}
 
+    def drop_unused_uturns(self, used: set[str]) -> None:
+        """Leave out the U-turns no vehicle of the run takes: a junction is controlled on the paths
+        its traffic drives (a U-turn the car cannot drive refuses the junction only where some
+        vehicle would make it)."""
+        for route in [r for r, (_, turn, _) in self.movement_table.items() if turn == "uturn" and r not in used]:
+            del self.movement_table[route], self.lane_movements[route], self.movement_junction[route]
+            self.feeders.pop(route, None)
+
     @property
     def approaches(self) -> list[str]:
         """Every approach of every junction, sorted."""

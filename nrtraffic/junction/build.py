@@ -135,7 +135,9 @@ def check_turn_radius(name: str, path: LanePath, s_from: float, s_to: float, par
         raise ValueError(f"movement {name}: its path turns on a radius of {1.0 / kappa:.1f} m, tighter than "
                          f"the vehicle's smallest ({1.0 / k_max:.1f} m at controller.steer_max_rad = "
                          f"{steer_max_rad:.3g} rad); give the junction a larger turning radius "
-                         f"in the network (netconvert: the node's radius, or --default.junctions.radius)")
+                         f"in the network (netconvert: the node's radius, or --default.junctions.radius)"
+                         + (", or leave the U-turn out of the demand (a U-turn needs a road wide enough to turn "
+                            "in)" if ".uturn" in name else ""))
 
 
 def stop_lines(paths: dict[str, Movement], areas: dict, junctions: dict[str, Junction],

@@ -137,14 +137,16 @@ def write_sumocfg(path: Path, network: Path, routes: Path, step_length_s: float)
         f'    </input>\n    <time>\n        <step-length value="{step_length_s:g}"/>\n    </time>\n</configuration>\n')
 
 
-def write_routes(path: Path, vtype, routes: dict[str, tuple[str, ...]], vehicles) -> None:
+def write_routes(path: Path, vtype, routes: dict[str, tuple[str, ...]], vehicles, t0_s: float = 0.0) -> None:
     """Write a SUMO route file.
 
     ``vtype``: a :class:`VehicleType`, or a list of them (the first is the default).
     ``vehicles``: iterable of ``(vehicle_id, route_name, depart_s, depart_speed_mps[, depart_pos_m[,
-    type_id]])`` sorted by departure (``depart_pos_m`` < 0 or absent: SUMO's ``base``, the vehicle
+    type_id[, depart_lane]]])`` sorted by departure (``depart_lane``: SUMO's departLane, "best"
+    where absent; ``depart_pos_m`` < 0 or absent: SUMO's ``base``, the vehicle
     just on the lane). The default type's speeds are deterministic (``speedFactor=1``,
-    ``sigma=0``); randomness then comes from the arrival times only.
+    ``sigma=0``); randomness then comes from the arrival times only. ``t0_s``: SUMO's clock at the
+    run's start, added to each departure (``depart_s`` is measured from the start) [s].
     """
     types = list(vtype) if isinstance(vtype, (list, tuple)) else [vtype]
     lines = ["<routes>"]
@@ -155,9 +157,10 @@ def write_routes(path: Path, vtype, routes: dict[str, tuple[str, ...]], vehicles
         pos = rest[0] if rest and rest[0] >= 0 else "base"
         pos = pos if isinstance(pos, str) else f"{pos:.3f}"
         tid = rest[1] if len(rest) > 1 else types[0].id
+        lane = rest[2] if len(rest) > 2 else "best"
         lines.append(
-            f'    <vehicle id="{vid}" type="{tid}" route="{route}" depart="{depart:.2f}" '
-            f'departSpeed="{speed:.3f}" departPos="{pos}" departLane="best"/>'
+            f'    <vehicle id="{vid}" type="{tid}" route="{route}" depart="{depart + t0_s:.2f}" '
+            f'departSpeed="{speed:.3f}" departPos="{pos}" departLane="{lane}"/>'
         )
     lines.append("</routes>")
     path.write_text("\n".join(lines) + "\n")
@@ -176,6 +179,8 @@ class SumoSession:
         .parquet selects that format (SUMO's own writers).
     gui : run in sumo-gui (shipped with eclipse-sumo) through TraCI instead of libsumo, to watch
         the run; slower, and needs a display.
+    begin_s : SUMO's clock at the start (``--begin``) [s]; :attr:`time` is measured from it, the route
+        file's departures are absolute (:func:`write_routes` ``t0_s``).
     """
 
     # colours of the vehicles in sumo-gui by their state in the run (RGBA)
@@ -185,8 +190,9 @@ class SumoSession:
 
     def __init__(self, net: Path, routes: Path, step_length_s: float, seed: int, lateral_resolution_m: float = 0.0,
                  tripinfo: Path | None = None, collisions: Path | None = None, fcd: Path | None = None,
-                 extra_args: tuple[str, ...] = (), gui: bool = False):
+                 extra_args: tuple[str, ...] = (), gui: bool = False, begin_s: float = 0.0):
         self.gui = gui
+        self.begin = float(begin_s)
         self.args = [
             "sumo",
             "--net-file", str(net),
@@ -201,6 +207,8 @@ class SumoSession:
             "--duration-log.disable", "true",
             "--time-to-teleport", "-1",
         ]
+        if self.begin > 0:
+            self.args += ["--begin", repr(self.begin)]
         if lateral_resolution_m > 0:
             self.args += ["--lateral-resolution", repr(float(lateral_resolution_m))]
         if tripinfo is not None:
@@ -277,7 +285,8 @@ class SumoSession:
 
     @property
     def time(self) -> float:
-        return self.traci.simulation.getTime()
+        """Simulated time since the run's start [s] (SUMO's clock less ``begin_s``)."""
+        return self.traci.simulation.getTime() - self.begin
 
     def departed(self) -> tuple[str, ...]:
         """Vehicles inserted in the last step; each is subscribed to the variables that

@@ -1,9 +1,12 @@
 """A SUMO demand file (``.rou.xml``) read into the run's departures (``demand.sumo_routes``).
 
 Each ``<vehicle>`` (with a ``route`` reference or an inline ``<route>``), ``<trip>`` (``from``/
-``to``) and ``<flow>`` (``from``/``to`` or a route; ``period``, ``vehsPerHour``, ``probability`` or
-``number`` between ``begin`` and ``end``) becomes departures of nrtraffic's own vehicle type; each is
-mapped to the junction movement whose incoming and outgoing edges its route uses. Flows follow
+``to``, ``via``) and ``<flow>`` (``from``/``to`` or a route; ``period``, ``vehsPerHour``,
+``probability`` or ``number`` between ``begin`` and ``end``) becomes departures of nrtraffic's own
+vehicle type on the file's whole route. Trips and flows given by ``from``/``to`` are first routed by
+SUMO's ``duarouter`` (:func:`routed`: the fastest route at free flow, as SUMO routes a trip at
+insertion in an empty network). A vehicle's crossings are the junction movements whose incoming and
+outgoing edges its route uses, in order along it (one per controlled junction it passes). Flows follow
 SUMO's rules: ``period`` and ``vehsPerHour`` and ``number`` give equally spaced departures,
 ``period="exp(r)"`` exponential headways of rate ``r`` [1/s], ``probability`` one chance per second;
 the random ones are drawn from the run's seed. Pure Python: SUMO then inserts the vehicles from the
@@ -13,6 +16,8 @@ run's route file like any other demand.
 from __future__ import annotations
 
 import math
+import subprocess
+import tempfile
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -38,27 +43,117 @@ def _num(el, key: str, where: str, default=None) -> float:
     return x
 
 
-def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.random.Generator, end_s: float,
-                     entry_speed_mps: float) -> list[tuple[str, str, float, float, float]]:
-    """Departures ``(vehicle_id, movement, depart_s, depart_speed_mps, -1)`` of the file, up to
-    ``end_s`` [s] for open-ended flows. ``movements`` maps ``(incoming edge, outgoing edge)`` to a
-    movement name; a route through the junction on edges it does not have is an error naming the
-    element. ``departSpeed`` is used where it is a number, else ``entry_speed_mps``."""
-    path = Path(path)
+DEPART_LANES = ("random", "free", "allowed", "best", "best_prob", "first")  # SUMO's departLane words
+_ROUTED: dict[tuple, Path] = {}  # (file, its version, network) -> the file routed by duarouter, once per process
+
+
+def _unrouted(root) -> bool:
+    """Whether the file has trips or flows given by their ends (``from``/``to``, ``via``,
+    ``fromJunction``...) rather than by a route."""
+    return any(el.tag in ("trip", "flow") and el.get("route") is None and el.find("route") is None
+               and (el.get("from") or el.get("fromJunction") or el.get("fromTaz")) for el in root)
+
+
+def merged(paths: list[Path]) -> Path:
+    """One route file of ``paths`` (SUMO reads several as one: a route or type defined in one is used
+    in another): the first where it is the only one, else their elements in one ``<routes>``."""
+    paths = [Path(p) for p in paths]
+    if len(paths) == 1:
+        return paths[0]
+    key = tuple((str(p.resolve()), p.stat().st_mtime_ns, p.stat().st_size) for p in paths)
+    if key in _ROUTED and _ROUTED[key].is_file():
+        return _ROUTED[key]
+    root = ET.Element("routes")
+    for p in paths:
+        try:
+            root.extend(list(ET.parse(p).getroot()))
+        except (OSError, ET.ParseError) as exc:
+            raise DemandFileError(f"demand.sumo_routes {p}: cannot be read as XML: {exc}") from None
+    out = Path(tempfile.mkdtemp(prefix="nrtraffic-routes-")) / "merged.rou.xml"
+    ET.ElementTree(root).write(out, encoding="utf-8", xml_declaration=True)
+    _ROUTED[key] = out
+    return out
+
+
+def routed(path: Path, net_path: Path) -> Path:
+    """``path``, or where it has trips or flows given by ``from``/``to`` (``via``), the same file with
+    each routed by SUMO's ``duarouter`` on the network ``net_path`` (the fastest route at the edges'
+    speed limits; departures, flows and attributes as they are). Raises DemandFileError, naming
+    duarouter's message, where a trip has no route."""
+    from nrtraffic.sumo.netbuild import sumo_binary
+
+    path, net_path = Path(path), Path(net_path)
     try:
         root = ET.parse(path).getroot()
     except (OSError, ET.ParseError) as exc:
         raise DemandFileError(f"demand.sumo_routes {path}: cannot be read as XML: {exc}") from None
-    routes = {r.get("id"): r.get("edges", "").split() for r in root.findall("route")}
+    if not _unrouted(root):
+        return path
+    st = path.stat()
+    key = (str(path.resolve()), st.st_mtime_ns, st.st_size, str(net_path.resolve()), net_path.stat().st_mtime_ns)
+    if key in _ROUTED and _ROUTED[key].is_file():
+        return _ROUTED[key]
+    out = Path(tempfile.mkdtemp(prefix="nrtraffic-routes-")) / f"{path.stem}.routed.rou.xml"
+    cmd = [sumo_binary("duarouter"), "--net-file", str(net_path), "--route-files", str(path), "--output-file", str(out),
+           "--no-step-log", "true", "--ignore-errors", "false", "--write-license", "false"]
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=3600)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        raise DemandFileError(f"demand.sumo_routes {path.name}: SUMO's duarouter could not be run to route its "
+                              f"trips: {exc}") from None
+    if proc.returncode != 0 or not out.is_file():
+        said = [ln.strip() for ln in (proc.stderr or proc.stdout).splitlines() if ln.strip()]
+        raise DemandFileError(f"demand.sumo_routes {path.name}: SUMO's duarouter could not route its trips: "
+                              f"{'; '.join(said[-3:]) or f'exit {proc.returncode}'} (mend the element it names: "
+                              "a trip needs a from and a to that some route connects)")
+    _ROUTED[key] = out
+    return out
 
-    def movement(edges: list[str], where: str) -> str:
-        for a, b in zip(edges, edges[1:]):
-            if (a, b) in movements:
-                return movements[(a, b)]
-        raise DemandFileError(f"{where}: its route {' '.join(edges)!r} uses no movement of the junction "
-                              f"(in -> out edges: {', '.join(f'{a} -> {b}' for a, b in movements)})")
+
+def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.random.Generator, end_s: float,
+                     entry_speed_mps: float, net=None, source: str | None = None) -> list[tuple]:
+    """Departures ``(vehicle_id, crossings, depart_s, depart_speed_mps, depart_pos_m, edges,
+    depart_lane, vclass)`` of the file (``vclass``: SUMO's vClass of its ``<vType>``, "passenger"
+    where it has none), up to ``end_s`` [s] for open-ended flows: ``crossings`` the
+    movements its route takes, in order (``movements`` maps ``(incoming edge, outgoing edge)`` to a
+    movement name), ``edges`` its whole route. A route that crosses no controlled junction is an
+    error naming the element; with ``net`` (a sumolib network) so is a route over an edge the
+    network does not have, or over two edges it does not connect, and a ``departLane`` or
+    ``departPos`` its first edge does not have. ``departSpeed`` is used where it is a number, else
+    ``entry_speed_mps``; ``departPos`` where it is a number, else -1 (SUMO's ``base``);
+    ``departLane`` as given (a lane index or SUMO's word), else "best". A trip given by
+    ``from``/``to`` that is not routed (:func:`routed`) is the two edges. ``source``: the file's
+    name in messages (the user's, where ``path`` is its routed copy)."""
+    path = Path(path)
+    label = source or path.name
+    try:
+        root = ET.parse(path).getroot()
+    except (OSError, ET.ParseError) as exc:
+        raise DemandFileError(f"demand.sumo_routes {label}: cannot be read as XML: {exc}") from None
+    routes = {r.get("id"): r.get("edges", "").split() for r in root.findall("route")}
+    vclass = {t.get("id"): t.get("vClass", "passenger") for t in root.iter("vType")}
+    checked: set[tuple[str, ...]] = set()
+
+    def crossings(edges: list[str], where: str) -> tuple[str, ...]:
+        if net is not None and tuple(edges) not in checked:
+            for e in edges:
+                if not net.hasEdge(e):
+                    raise DemandFileError(f"{where}: its route names edge {e!r}, which the network does not have")
+            for a, b in zip(edges, edges[1:]):
+                if not any(o.getID() == b for o in net.getEdge(a).getOutgoing()):
+                    raise DemandFileError(f"{where}: its route goes from edge {a!r} to {b!r}, which the network does "
+                                          "not connect (give the edges between them, or a trip to route)")
+            checked.add(tuple(edges))
+        legs = tuple(movements[(a, b)] for a, b in zip(edges, edges[1:]) if (a, b) in movements)
+        if not legs:
+            raise DemandFileError(f"{where}: its route {' '.join(edges)!r} uses no movement of the junction "
+                                  f"(in -> out edges: {', '.join(f'{a} -> {b}' for a, b in movements)})")
+        return legs
 
     def edges_of(el, where: str) -> list[str]:
+        inner = el.find("route")
+        if inner is not None:
+            return inner.get("edges", "").split()
         if el.get("from") and el.get("to"):
             return [el.get("from"), el.get("to")]
         ref = el.get("route")
@@ -66,9 +161,6 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
             if ref not in routes:
                 raise DemandFileError(f"{where}: route {ref!r} is not defined in the file")
             return routes[ref]
-        inner = el.find("route")
-        if inner is not None:
-            return inner.get("edges", "").split()
         raise DemandFileError(f"{where}: needs from/to, a route attribute or an inner <route>")
 
     def speed(el, where: str) -> float:
@@ -77,8 +169,28 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
             return entry_speed_mps
         return _num(el, "departSpeed", where)
 
+    def position(el, where: str, first: str) -> float:  # departPos [m] where a number, else -1 (SUMO's base)
+        v = el.get("departPos")
+        if v is None or not v.replace(".", "", 1).isdigit():
+            return -1.0
+        x = _num(el, "departPos", where)
+        if net is not None and x > net.getEdge(first).getLength():
+            raise DemandFileError(f"{where}: departPos={v} lies beyond its first edge {first!r} "
+                                  f"({net.getEdge(first).getLength():.1f} m long)")
+        return x
+
+    def lane(el, where: str, first: str) -> str:  # departLane as SUMO reads it; "best" where not given
+        v = (el.get("departLane") or "best").strip()
+        if v.isdigit():
+            if net is not None and int(v) >= net.getEdge(first).getLaneNumber():
+                raise DemandFileError(f"{where}: departLane={v}, but its first edge {first!r} has "
+                                      f"{net.getEdge(first).getLaneNumber()} lane(s), numbered from 0")
+        elif v not in DEPART_LANES:
+            raise DemandFileError(f"{where}: departLane={v!r} is not a lane index or one of {', '.join(DEPART_LANES)}")
+        return v
+
     if not any(el.tag in ("vehicle", "trip", "flow") for el in root):
-        raise DemandFileError(f"demand.sumo_routes {path}: holds no <vehicle>, <trip> or <flow> (a SUMO route file "
+        raise DemandFileError(f"demand.sumo_routes {label}: holds no <vehicle>, <trip> or <flow> (a SUMO route file "
                               "is expected)")
     out = []
     for el in root:
@@ -86,13 +198,16 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
         if tag not in ("vehicle", "trip", "flow"):
             continue
         vid = el.get("id")
-        where = f"demand.sumo_routes {path.name}: <{tag} id={vid!r}>"
+        where = f"demand.sumo_routes {label}: <{tag} id={vid!r}>"
         if not vid:
-            raise DemandFileError(f"demand.sumo_routes {path.name}: a <{tag}> without an id")
-        mv = movement(edges_of(el, where), where)
-        v0 = speed(el, where)
+            raise DemandFileError(f"demand.sumo_routes {label}: a <{tag}> without an id")
+        edges = edges_of(el, where)
+        legs = crossings(edges, where)
+        edges = tuple(edges)
+        v0, x0, ln = speed(el, where), position(el, where, edges[0]), lane(el, where, edges[0])
+        kind = vclass.get(el.get("type"), "passenger")
         if tag in ("vehicle", "trip"):
-            out.append((vid, mv, _num(el, "depart", where), v0, -1.0))
+            out.append((vid, legs, _num(el, "depart", where), v0, x0, edges, ln, kind))
             continue
         begin = _num(el, "begin", where, 0.0)
         end = min(_num(el, "end", where, math.inf), end_s)
@@ -134,8 +249,8 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
             raise DemandFileError(f"{where}: needs period, vehsPerHour, probability or number")
         if el.get("number") is not None and (el.get("period") is not None or el.get("vehsPerHour") is not None):
             times = times[:int(_num(el, "number", where))]
-        out += [(f"{vid}.{k}", mv, float(t), v0, -1.0) for k, t in enumerate(times)]
+        out += [(f"{vid}.{k}", legs, float(t), v0, x0, edges, ln, kind) for k, t in enumerate(times)]
     ids = [o[0] for o in out]
     if len(set(ids)) != len(ids):
-        raise DemandFileError(f"demand.sumo_routes {path.name}: vehicle ids repeat")
+        raise DemandFileError(f"demand.sumo_routes {label}: vehicle ids repeat")
     return out

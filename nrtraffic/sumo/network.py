@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,11 +25,13 @@ class JunctionMovement:
     in_lane: int = 0  # index of the incoming lane (0: the rightmost)
     out_lane: int = 0  # index of the lane it enters on the outgoing edge
     in_lanes: int = 1  # lanes of the incoming edge
+    twin: bool = False  # another road leaves the incoming edge with the same turn (SUMO's "L" beside "l")
 
     @property
     def route(self) -> str:
-        """The turning movement it belongs to: ``<in_edge>.<turn>`` (the demand's unit)."""
-        return f"{self.in_edge}.{self.turn}"
+        """The turning movement it belongs to: ``<in_edge>.<turn>`` (the demand's unit), or
+        ``<in_edge>.<turn>.<out_edge>`` where two roads leave the incoming edge with that turn."""
+        return f"{self.in_edge}.{self.turn}" + (f".{self.out_edge}" if self.twin else "")
 
     @property
     def lane(self) -> str:
@@ -37,8 +40,11 @@ class JunctionMovement:
 
     @property
     def name(self) -> str:
-        """``<in_edge>.<turn>`` on a one-lane approach, ``<in_edge>_<lane>.<turn>`` on a wider one."""
-        return self.route if self.in_lanes == 1 else f"{self.lane}.{self.turn}"
+        """``<in_edge>.<turn>`` on a one-lane approach, ``<in_edge>_<lane>.<turn>`` on a wider one
+        (each with ``.<out_edge>`` for a :attr:`twin`)."""
+        if self.in_lanes == 1:
+            return self.route
+        return f"{self.lane}.{self.turn}" + (f".{self.out_edge}" if self.twin else "")
 
 
 def read_net(net_path: Path):
@@ -59,7 +65,10 @@ def _read_net(path: str, mtime_ns: int, size: int):
 
 def junction_movements(net_path: Path, junction_id: str) -> tuple[list[JunctionMovement], tuple[float, float]]:
     """The movements through ``junction_id``, one per lane-to-lane connection of every incoming
-    lane (the first, where a lane connects to two lanes of the same road), and its position."""
+    lane (the first, where a lane connects to two lanes of the same road), U-turns included, and its
+    position. Two
+    roads reached from one incoming road with the same turn (SUMO's "l" and "L") are two turning
+    movements (:attr:`JunctionMovement.twin`)."""
     net = read_net(net_path)
     if not net.hasNode(junction_id):
         raise NetworkError(f"junction {junction_id!r} is not in {net_path}")
@@ -74,10 +83,14 @@ def junction_movements(net_path: Path, junction_id: str) -> tuple[list[JunctionM
             for con in lane.getOutgoing():
                 turn = TURNS.get(con.getDirection(), con.getDirection())
                 to = con.getTo().getID()
-                if turn == "uturn" or to in seen:
+                if to in seen:
                     continue
                 seen.add(to)
                 out.append(JunctionMovement(edge.getID(), to, turn, k, con.getToLane().getIndex(), len(lanes)))
+    roads: dict[tuple[str, str], set[str]] = {}
+    for m in out:
+        roads.setdefault((m.in_edge, m.turn), set()).add(m.out_edge)
+    out = [dataclasses.replace(m, twin=True) if len(roads[(m.in_edge, m.turn)]) > 1 else m for m in out]
     if not out:
         raise NetworkError(f"junction {junction_id!r} ({node.getType()}) has no movements: no incoming lane "
                            f"connects through it to another road, so there is nothing to coordinate")
@@ -251,6 +264,10 @@ def check_sumo_args(args: tuple[str, ...]) -> None:
     unknown += [a for a, n in given if n not in known]
     if unknown:
         raise NetworkError(f"sumo.extra_args: SUMO has no option {', '.join(unknown)}")
+    clock = [a if a.startswith("--") else f"{a} (--{n})" for a, n in given if n in ("begin", "end")]
+    if clock:
+        raise NetworkError(f"sumo.extra_args: {', '.join(clock)} sets SUMO's clock, which the run keeps itself: "
+                           "use scenario.begin_s for the start and scenario.duration_s (or --duration) for the length")
     writing = [a if a.startswith("--") else f"{a} (--{n})" for a, n in given if n in sumo_writing_options()]
     if writing:
         raise NetworkError(f"sumo.extra_args: {', '.join(writing)} would write files outside the run folder; "

@@ -1,0 +1,195 @@
+"""Route files as SUMO reads them, on a corridor of three controlled junctions: whole routes kept,
+trips routed (as duarouter routes them: the fastest path at the speed limits), each vehicle's
+crossings taken from its route, and a route the network cannot drive refused before SUMO starts."""
+
+import json
+import re
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+
+import pandas as pd
+import pytest
+import sumolib
+
+from conftest import ROOT, copy_scenario
+
+ROUTES = """<routes>
+    <vType id="lorry" vClass="truck" length="12"/>
+    <trip id="through" depart="2" from="W_J1" to="J3_E"/>
+    <vehicle id="side" type="lorry" depart="4" departPos="50" departLane="0"><route edges="N1_J1 J1_J2 J2_S2"/></vehicle>
+    <flow id="west" from="E_J3" to="J2_N2" begin="0" end="40" vehsPerHour="180"/>
+    <trip id="via" depart="6" from="S3_J3" to="J1_W" via="J3_J2"/>
+</routes>
+"""
+
+
+def _corridor(tmp_path, routes=ROUTES):
+    d = copy_scenario("corridor3", tmp_path / "sc", "min_headway_s = 1.5\n",
+                      'min_headway_s = 1.5\nsumo_routes = "r.rou.xml"\n')
+    toml = d / "scenario.toml"
+    text = toml.read_text()
+    text = text[:text.index("[[demand.flows]]")] + text[text.index("[[junctions]]"):]  # the file is the demand
+    toml.write_text(text)
+    (d / "r.rou.xml").write_text(routes)
+    return d
+
+
+def _run(args, **kw):
+    return subprocess.run([sys.executable, "-m", "runners.cli", *map(str, args), "--no-progress"], cwd=ROOT,
+                          capture_output=True, text=True, **kw)
+
+
+def test_a_route_file_drives_a_corridor_each_vehicle_on_its_whole_route(tmp_path):
+    d = _corridor(tmp_path)
+    out = tmp_path / "run"
+    r = _run(["run", d / "scenario.toml", "--duration", "150", "--set", "outputs.warmup_s=0", "--out", out])
+    assert r.returncode == 0, r.stderr
+    net = sumolib.net.readNet(str(d / "net.net.xml"))
+
+    def fastest(a, b, via=()):
+        stops = [a, *via, b]
+        path = [stops[0]]
+        for x, y in zip(stops, stops[1:]):
+            path += [e.getID() for e in net.getFastestPath(net.getEdge(x), net.getEdge(y))[0][1:]]
+        return path
+
+    # the routes SUMO was given: each vehicle's whole route; trips routed on the fastest path
+    rou = ET.parse(out / "sumo" / "routes.rou.xml").getroot()
+    routes = {r.get("id"): r.get("edges").split() for r in rou.iter("route")}
+    given = {v.get("id"): routes[v.get("route")] for v in rou.iter("vehicle")}
+    assert given["through"] == fastest("W_J1", "J3_E") == ["W_J1", "J1_J2", "J2_J3", "J3_E"]
+    assert given["side"] == ["N1_J1", "J1_J2", "J2_S2"]
+    assert given["via"] == fastest("S3_J3", "J1_W", ["J3_J2"])
+    flow = [v for v in given if v.startswith("west.")]
+    assert len(flow) == 2 and all(given[v] == fastest("E_J3", "J2_N2") for v in flow)
+    # SUMO drove them to the end of those routes (its own tripinfo: where each arrived, how far it went)
+    trips = {t.get("id"): t for t in ET.parse(out / "tripinfo.xml").getroot().iter("tripinfo")}
+    assert float(trips["side"].get("departPos")) == 50.0 and trips["side"].get("departLane") == "N1_J1_0"
+    for vid, edges in given.items():
+        assert trips[vid].get("arrivalLane").rsplit("_", 1)[0] == edges[-1]
+        assert float(trips[vid].get("routeLength")) > sum(net.getEdge(e).getLength() for e in edges[1:-1])
+    # one crossing per controlled junction on the route, in order, each under control
+    v = pd.read_csv(out / "vehicles.csv")
+    legs = v.groupby("vehicle_id")["junction"].apply(list).to_dict()
+    assert legs["through"] == ["J1", "J2", "J3"]
+    assert legs["side"] == ["J1", "J2"]
+    assert legs["via"] == ["J3", "J2", "J1"]
+    assert all(legs[f] == ["J3", "J2"] for f in flow)
+    assert v["t_exit_s"].notna().all() and (v["plant_steps"] > 0).all()
+    # the run says that the file's vehicles, its truck too, drive as nrtraffic's car
+    summary = json.loads((out / "summary.json").read_text())
+    assert any("its 5 vehicles drive as nrtraffic's car" in w and "1 of vClass truck" in w for w in summary["warnings"])
+    # the run folder holds its route file: it replays from there alone
+    assert (out / "sumo" / "r.rou.xml").read_text() == ROUTES
+    (d / "r.rou.xml").unlink()
+    r = _run(["replay", out, "--out", tmp_path / "again"])
+    assert r.returncode == 0 and "matches" in r.stdout + r.stderr, r.stdout + r.stderr
+
+
+@pytest.mark.parametrize("body, message", [
+    ('<vehicle id="x" depart="1"><route edges="W_J1 J1_J2 J2_J3 nowhere"/></vehicle>',
+     "names edge 'nowhere', which the network does not have"),
+    ('<vehicle id="x" depart="1"><route edges="W_J1 J2_J3"/></vehicle>',
+     "from edge 'W_J1' to 'J2_J3', which the network does not connect"),
+    ('<trip id="x" depart="1" from="W_J1" to="N1_J1"/>', "duarouter could not route its trips"),
+    ('<trip id="x" depart="1" from="W_J1" to="J1_J2" departLane="2"/>', "departLane=2, but its first edge 'W_J1' has 1"),
+    ('<vehicle id="x" depart="1" departLane="left"><route edges="W_J1 J1_J2"/></vehicle>',
+     "departLane='left' is not a lane index"),
+    ('<trip id="x" depart="1" from="W_J1" to="J1_J2" departLane="left"/>', "Invalid departLane definition for trip 'x'"),
+    ('<trip id="x" depart="1" from="W_J1" to="J1_J2" departPos="900"/>', "r.rou.xml: <vehicle id='x'>: departPos=900.00 lies beyond its first edge 'W_J1'"),
+])
+def test_a_route_the_network_cannot_drive_is_refused_before_sumo_starts(tmp_path, body, message):
+    d = _corridor(tmp_path, f"<routes>\n    {body}\n</routes>\n")
+    out = tmp_path / "run"
+    r = _run(["run", d / "scenario.toml", "--duration", "30", "--out", out])
+    assert r.returncode == 2, r.stderr
+    assert re.search(re.escape(message), r.stderr) and "demand.sumo_routes" in r.stderr, r.stderr
+    assert not (out / "summary.json").exists()  # refused before the run
+
+
+def test_a_route_file_at_seven_in_the_morning_gives_the_figures_of_the_same_file_at_zero(tmp_path):
+    """scenario.begin_s = 25200 (SUMO's --begin) with tee3's route file moved to 07:00: the same
+    vehicles, crossings and figures as the file at 0 s, times measured from the start."""
+    from conftest import SCENARIOS
+
+    runs = {}
+    for begin in (0, 25200):
+        d = tmp_path / f"at{begin}"
+        d.mkdir()
+        for f in (SCENARIOS / "tee3").iterdir():
+            if f.is_file():
+                (d / f.name).write_bytes(f.read_bytes())
+        tree = ET.parse(d / "flows.rou.xml")
+        for el in tree.getroot():
+            for key in ("depart", "begin", "end"):
+                if el.get(key) is not None:
+                    el.set(key, f"{float(el.get(key)) + begin:.2f}")
+        tree.write(d / "flows.rou.xml")
+        toml = d / "routes.toml"
+        toml.write_text(toml.read_text().replace("duration_s = 600.0", f"duration_s = 600.0\nbegin_s = {begin}.0"))
+        out = tmp_path / f"run{begin}"
+        r = _run(["run", toml, "--duration", "120", "--set", "outputs.warmup_s=10", "--out", out])
+        assert r.returncode == 0, r.stderr
+        runs[begin] = out
+    a, b = (pd.read_csv(runs[k] / "vehicles.csv").set_index("vehicle_id").sort_index() for k in (0, 25200))
+    assert len(a) > 10 and list(a.index) == list(b.index)
+    num = a.select_dtypes("number").columns
+    pd.testing.assert_frame_equal(a[num], b[num], rtol=1e-6, atol=1e-6)
+    sa, sb = (json.loads((runs[k] / "summary.json").read_text()) for k in (0, 25200))
+    assert sb["begin_s"] == 25200 and sa["begin_s"] == 0
+    for key in ("vehicles_spawned", "throughput_veh_h", "mean_delay_s", "demand_veh_h", "measure_from_s", "measure_to_s"):
+        assert sa[key] == pytest.approx(sb[key], rel=1e-9, abs=1e-9), key
+    # SUMO's own clock ran from 07:00: its tripinfo departures are the relative ones plus 25200
+    dep = {t.get("id"): float(t.get("depart")) for t in ET.parse(runs[25200] / "tripinfo.xml").getroot().iter("tripinfo")}
+    dep0 = {t.get("id"): float(t.get("depart")) for t in ET.parse(runs[0] / "tripinfo.xml").getroot().iter("tripinfo")}
+    assert dep and all(abs(dep[v] - dep0[v] - 25200) < 1e-6 for v in dep0)
+
+
+def test_sumo_clock_options_are_refused_for_scenario_begin_s(tmp_path):
+    from conftest import SCENARIOS
+
+    r = _run(["run", SCENARIOS / "tee3" / "routes.toml", "--set", 'sumo.extra_args=["--begin", "25200"]',
+              "--out", tmp_path / "run"])
+    assert r.returncode == 2 and "scenario.begin_s" in r.stderr, r.stderr
+
+
+def test_a_sumocfg_gives_the_network_route_files_begin_and_end(tmp_path):
+    """scenario.sumocfg: the network, two route files (a route defined in one, used in the other),
+    begin and end from a SUMO configuration in a folder of its own."""
+    from nrtraffic import scenario
+    from nrtraffic.demand import Demand
+
+    d = _corridor(tmp_path)
+    cfg = d / "sumo"
+    cfg.mkdir()
+    (d / "net.net.xml").rename(cfg / "city.net.xml")
+    (cfg / "defs.rou.xml").write_text('<routes>\n    <route id="r" edges="N1_J1 J1_J2 J2_S2"/>\n</routes>\n')
+    (cfg / "cars.rou.xml").write_text('<routes>\n    <vehicle id="a" depart="25210" route="r"/>\n'
+                                      '    <vehicle id="early" depart="25100" route="r"/>\n'
+                                      '    <trip id="b" depart="25230" from="W_J1" to="J3_E"/>\n</routes>\n')
+    (cfg / "city.sumocfg").write_text("""<configuration>
+    <input>
+        <net-file value="city.net.xml"/>
+        <route-files value="defs.rou.xml,cars.rou.xml"/>
+    </input>
+    <time>
+        <begin value="25200"/>
+        <end value="28800"/>
+    </time>
+</configuration>
+""")
+    toml = d / "scenario.toml"
+    text = toml.read_text().replace('network = "net.net.xml"', 'sumocfg = "sumo/city.sumocfg"')
+    text = text.replace("duration_s = 600.0\n", "").replace('sumo_routes = "r.rou.xml"\n', "")
+    toml.write_text(text)
+    sc = scenario.load(toml)
+    assert sc.network_path == (cfg / "city.net.xml").resolve()
+    assert sc.general.begin_s == 25200 and sc.general.duration_s == 3600
+    assert [p.name for p in sc.demand.route_files(sc.base_dir)] == ["defs.rou.xml", "cars.rou.xml"]
+    dem = Demand.of(sc)
+    dep = {v[0]: (v[1], v[2]) for v in dem.departures()}
+    assert set(dep) == {"a", "b"}  # "early" departs before the begin: SUMO does not insert it
+    assert dep["a"][1] == 10.0 and dep["b"][1] == 30.0
+    assert dem.route_edges(dep["a"][0]) == ("N1_J1", "J1_J2", "J2_S2")
+    assert dem.itineraries[dep["b"][0]] == ("W_J1.straight", "J1_J2.straight", "J2_J3.straight")
