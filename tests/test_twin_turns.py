@@ -91,5 +91,6 @@ def test_u_turns_are_movements_refused_only_where_driven_and_the_car_cannot(tmp_
     d2 = _five_legs(tmp_path / "b", '\n[[demand.flows]]\napproach = "S_C"\nstraight = 300.0\n', turnarounds=True)
     out2 = tmp_path / "run2"
     r = subprocess.run([sys.executable, "-m", "runners.cli", "run", str(d2 / "scenario.toml"), "--duration", "60",
-                        "--out", str(out2), "--no-progress"], cwd=ROOT, capture_output=True, text=True)
+                        "--set", "outputs.warmup_s=0", "--out", str(out2), "--no-progress"], cwd=ROOT,
+                       capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
