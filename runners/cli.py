@@ -172,6 +172,38 @@ def _add_bench(sub) -> None:
                    help="short runs (120 s instead of 600 s; memory at 60 and 120 s): a smoke test, not the figures")
 
 
+class _Version(argparse.Action):
+    """``--version``: nrtraffic's version and SUMO's, then exit 0 (SUMO is not started)."""
+
+    def __init__(self, option_strings, dest, **kw):
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kw)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(version_text())
+        parser.exit(0)
+
+
+def version_text() -> str:
+    """``nrtraffic X.Y.Z`` and ``SUMO X.Y.Z`` (the eclipse-sumo and libsumo packages installed),
+    one a line."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    from nrtraffic import __version__
+
+    def of(package: str) -> str | None:
+        try:
+            return version(package)
+        except PackageNotFoundError:
+            return None
+
+    sumo, lib = of("eclipse-sumo"), of("libsumo")
+    if sumo is None:
+        line = "SUMO not installed (pip install eclipse-sumo libsumo, or make install)"
+    else:
+        line = f"SUMO {sumo}" + ("" if lib == sumo else f" (libsumo {lib or 'not installed'})")
+    return f"nrtraffic {__version__}\n{line}"
+
+
 class OutputError(ValueError):
     """The output folder cannot be used."""
 
@@ -263,6 +295,7 @@ def _main(argv: list[str] | None) -> int:
         description="Co-simulation of signal-free intersections: SUMO + energy-optimal planning + "
                     "Newton-Raphson-flow tracking of a dynamic bicycle model.",
     )
+    parser.add_argument("--version", action=_Version, help="print the versions of nrtraffic and SUMO and exit")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_run(sub)
     _add_paper(sub)
