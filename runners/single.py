@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from nrtraffic import _kernel_cache
 from nrtraffic import scenario as scenario_mod
 from nrtraffic.engine import Engine, RunFailed
 from nrtraffic.results import (RunResult, TrajectoryWriter, write_atomic, write_movements, write_summary, write_table,
@@ -245,6 +246,8 @@ def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: 
         update_manifest(out)
         return RunFailed(summary["error"], RunResult(summary, pd.DataFrame(), out))
 
+    if engine_options.get("control", True):
+        _kernel_cache.announce()  # the first run after installing compiles the kernels (numba)
     try:
         interrupts.arm()  # a SIGTERM or Ctrl-C that came during the checks stops the run here
         engine = Engine(resolved, out, trajectories=writer, progress=progress, checkpoint=checkpoint,

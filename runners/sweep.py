@@ -34,6 +34,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from nrtraffic import _kernel_cache
 from nrtraffic.sumo.netbuild import BASELINES as SUMO_BASELINES
 
 NRTRAFFIC = "nrtraffic"
@@ -206,6 +207,7 @@ def run_job(spec: dict) -> dict:
         os._exit(70)  # fault injection (tests): this job's worker process dies
     tmp = final.parent / f".{final.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
     failed = final.parent / f"{final.name}.failed"
+    _kernel_cache.quiet()  # (the sweep said it before it started its workers)
     with _ONE_SIMULATION:
         try:
             sc = scenario.load(spec["scenario"], spec["overrides"], allow_outside=spec.get("allow_outside", False))
@@ -278,18 +280,82 @@ def sweep_figures(df: pd.DataFrame, summ: pd.DataFrame, out: Path) -> list[str]:
     return ["sweep.png", "sweep_seeds.png"]
 
 
+class Progress:
+    """How far a sweep is: a tqdm bar on a terminal; elsewhere (a file, a pipe, CI) a line on
+    stderr per finished run, or per 2 % of the runs when there are more than 50::
+
+        sweep: 7/40 runs done (1 failed), 3 min 10 s elapsed, about 15 min left; last: base/seed3/nrtraffic ok
+
+    ``total`` runs of which ``initial`` were finished before (a resumed sweep: not counted in the
+    time left); ``enabled`` False: nothing at all."""
+
+    def __init__(self, total: int, initial: int, enabled: bool = True, stream=None):
+        import sys
+        import time
+
+        self.stream = stream or sys.stderr
+        self.total, self.n, self.failed, self.initial = total, initial, 0, initial
+        self.t0 = time.monotonic()
+        self.lines = enabled and not self.stream.isatty()
+        self.every = max(1, total // 50)
+        self.bar = None
+        if enabled and not self.lines:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=total, initial=initial, desc="runs", unit="run", file=self.stream)
+        if self.lines:
+            self._print(f"sweep: {total - initial} run{'s' if total - initial != 1 else ''} to do"
+                        + (f" ({initial} of {total} finished before)" if initial else ""))
+
+    def done(self, job: Job, failed: bool) -> None:
+        """One more run finished (``failed``: recorded as failed)."""
+        import time
+
+        self.n += 1
+        self.failed += bool(failed)
+        if self.bar is not None:
+            self.bar.update(1)
+            self.bar.set_postfix(failed=self.failed, remaining=self.total - self.n, refresh=False)
+        elif self.lines and (self.n % self.every == 0 or self.n == self.total):
+            elapsed = time.monotonic() - self.t0
+            left = elapsed / (self.n - self.initial) * (self.total - self.n)
+            run = Path(job.run_dir)
+            self._print(f"sweep: {self.n}/{self.total} runs done ({self.failed} failed), {_duration(elapsed)} elapsed"
+                        + (f", about {_duration(left)} left" if self.n < self.total else "")
+                        + f"; last: {run.parent.parent.name}/{run.parent.name}/{run.name} "
+                        + ("failed" if failed else "ok"))
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+    def _print(self, text: str) -> None:
+        print(text, file=self.stream, flush=True)
+
+
+def _duration(s: float) -> str:
+    """A wall-clock time for a person: ``42 s``, ``3 min 10 s``, ``1 h 05 min``."""
+    s = int(round(s))
+    if s < 60:
+        return f"{s} s"
+    if s < 3600:
+        return f"{s // 60} min {s % 60:02d} s"
+    return f"{s // 3600} h {s % 3600 // 60:02d} min"
+
+
 def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | None = None,
               progress: bool = True, figures=sweep_figures) -> pd.DataFrame:
     """Run the jobs not yet finished on Dask, then write the tables and figures (``figures``, see
     :func:`write_tables`) from every run directory. Returns ``sweep.csv`` as a DataFrame."""
     import dask
     from dask.distributed import Client, LocalCluster, as_completed
-    from tqdm import tqdm
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     todo = [j for j in jobs if finished(j) is None]
     errors: dict[str, str] = {}
+    if todo and progress and any(j.control == NRTRAFFIC for j in todo):
+        _kernel_cache.announce()  # (the workers compile them; they say nothing themselves)
     if todo:
         # a worker that dies (e.g. killed by the OS) is one failure of that job, not three; and a
         # worker holds only the job it runs (saturation 1.0: the others wait at the scheduler), so
@@ -309,18 +375,14 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
             try:
                 futures = {client.submit(run_job, j.spec(), retries=1, pure=False,
                                          key=f"run-{uuid.uuid4().hex}"): j for j in todo}
-                bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="runs", unit="run",
-                           disable=None if progress else True)
-                n_failed = 0
+                report = Progress(len(jobs), len(jobs) - len(todo), progress)
                 for fut in as_completed(futures):
                     job = futures[fut]
                     if fut.status != "finished":
                         exc = fut.exception()
                         errors[job.run_dir] = f"{type(exc).__name__}: {exc}".strip()
-                        n_failed += 1
-                    bar.update(1)
-                    bar.set_postfix(failed=n_failed, remaining=bar.total - bar.n, refresh=False)
-                bar.close()
+                    report.done(job, job.run_dir in errors)
+                report.close()
             finally:
                 client.close()
                 if cluster is not None:
