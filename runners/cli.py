@@ -30,6 +30,8 @@ _duration = _bounded(float, 0.0, MAX_DURATION_S, "a number of seconds",
                      f"the simulated time must be between 0 and {MAX_DURATION_S:.0f} s")
 _seed = _bounded(int, 0, MAX_SEED, "a whole number", f"a seed must be between 0 and {MAX_SEED}")
 _tolerance = _bounded(float, 0.0, float("inf"), "a number", "a tolerance must be finite and >= 0")
+GUI_DELAY_MS = 100.0  # sumo-gui's delay between steps by default [ms]: 0.1 s steps at about real time
+_gui_delay = _bounded(float, 0.0, 10000.0, "a number of milliseconds", "the delay must be between 0 and 10000 ms")
 
 
 def _add_run(sub) -> None:
@@ -49,8 +51,13 @@ def _add_run(sub) -> None:
                    help="override a scenario setting (repeatable), e.g. --set controller.horizon_s=0.3")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--gui", action="store_true",
-                   help="watch the run in sumo-gui (needs a display; vehicles coloured by state: grey approaching, "
-                        "amber waiting for their batch, red held, blue under control, green released)")
+                   help="watch the run in sumo-gui, opened on the controlled junctions (needs a display: DISPLAY, or "
+                        "xvfb-run; vehicles coloured by state: grey approaching, amber waiting for their batch, red "
+                        "held, blue under control, green released, white driven by SUMO, purple a human driver "
+                        "going to its stop line, pink a human driver whose crossing is reserved)")
+    p.add_argument("--gui-delay", type=_gui_delay, default=GUI_DELAY_MS, metavar="MS",
+                   help=f"with --gui, the wall time each SUMO step takes at least [ms] (default {GUI_DELAY_MS:g}; "
+                        "0: as fast as it can)")
 
 
 def _add_paper(sub) -> None:
@@ -208,6 +215,10 @@ class OutputError(ValueError):
     """The output folder cannot be used."""
 
 
+class DisplayError(OutputError):
+    """``--gui`` without a display (exit 2, before SUMO starts)."""
+
+
 def writable_dir(path: Path) -> None:
     """Refuse (exit 2) an output folder that is a file or cannot be created or written, before
     anything runs."""
@@ -221,6 +232,24 @@ def writable_dir(path: Path) -> None:
         probe.unlink()
     except OSError as exc:
         raise OutputError(f"--out {path}: cannot write there: {exc.strerror or exc}") from None
+
+
+def display_missing(out: Path) -> str | None:
+    """Why ``--gui`` cannot open sumo-gui here: on Linux and the BSDs, a graphical program needs
+    ``DISPLAY`` (X11) or ``WAYLAND_DISPLAY``; None where one is set, or on macOS and Windows. The
+    message names the virtual display to run under, and the run's ``.sumocfg`` to open after a
+    headless run."""
+    import os
+
+    if not sys.platform.startswith(("linux", "freebsd", "openbsd", "netbsd")):
+        return None
+    if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
+        return None
+    cfg = Path(out) / "sumo" / "run.sumocfg"
+    return ("--gui needs a display, and neither DISPLAY nor WAYLAND_DISPLAY is set (no desktop session, e.g. over "
+            "ssh or in CI). Run it under a virtual display: xvfb-run -a nrtraffic run ... --gui (apt-get install "
+            "xvfb); or run without --gui and then open the run's demand in sumo-gui on a machine with a display: "
+            f"sumo-gui -c {cfg} (SUMO driving every vehicle, without the controller)")
 
 
 def _sumo_missing() -> str | None:
@@ -386,8 +415,13 @@ def _cmd_run(args) -> int:
     sc = scenario.load(args.scenario, args.overrides, allow_outside=args.allow_outside)
     seed = sc.general.seed if args.seed is None else args.seed
     out = args.out or Path("runs") / f"{slug(sc.general.name)}-seed{seed}"
+    if args.gui:
+        no_display = display_missing(out)
+        if no_display:
+            raise DisplayError(no_display)
     _claim(out, sc, seed, args.duration, "nrtraffic", args.force)
-    res = run_scenario(sc, out, seed=seed, duration_s=args.duration, progress=not args.no_progress, gui=args.gui)
+    res = run_scenario(sc, out, seed=seed, duration_s=args.duration, progress=not args.no_progress, gui=args.gui,
+                       gui_delay_ms=args.gui_delay)
     _report(out)
     _print_summary(res.summary, out)
     return 0

@@ -102,10 +102,11 @@ def route_copies(sc: scenario_mod.Scenario) -> list[tuple[Path, str]]:
 
 
 def run_scenario(sc: scenario_mod.Scenario, out: Path, seed: int | None = None, duration_s: float | None = None,
-                 progress: bool = False, gui: bool = False) -> RunResult:
+                 progress: bool = False, gui: bool = False, gui_delay_ms: float = 100.0) -> RunResult:
     """Run ``sc`` and write the run directory ``out``; raises :class:`RunFailed` after writing what
-    was finished when the run stops early. ``gui``: in sumo-gui (:class:`~nrtraffic.sumo.adapter.SumoSession`)."""
-    return execute(sc, prepare_run_dir(sc, out), seed, duration_s, progress, gui=gui)
+    was finished when the run stops early. ``gui``: in sumo-gui (:class:`~nrtraffic.sumo.adapter.SumoSession`),
+    ``gui_delay_ms`` [ms] between its steps."""
+    return execute(sc, prepare_run_dir(sc, out), seed, duration_s, progress, gui=gui, gui_delay_ms=gui_delay_ms)
 
 
 def resolve(sc: scenario_mod.Scenario, seed: int | None, duration_s: float | None) -> scenario_mod.Scenario:
