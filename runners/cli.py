@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import argparse
 import sys
-import threading
 from pathlib import Path
 
 from nrtraffic.limits import MAX_DURATION_S, MAX_SEED  # (light: the flags are checked before SUMO loads)
 from runners import interrupts
+from runners.api import OutputError, slug, writable_dir  # noqa: F401 (shared with the Python API)
+from runners.api import claim as _claim
+from runners.api import write_report as _report
 
 
 def _bounded(parse, lo, hi, name: str, what: str):
@@ -211,27 +213,8 @@ def version_text() -> str:
     return f"nrtraffic {__version__}\n{line}"
 
 
-class OutputError(ValueError):
-    """The output folder cannot be used."""
-
-
 class DisplayError(OutputError):
     """``--gui`` without a display (exit 2, before SUMO starts)."""
-
-
-def writable_dir(path: Path) -> None:
-    """Refuse (exit 2) an output folder that is a file or cannot be created or written, before
-    anything runs."""
-    path = Path(path)
-    if path.exists() and not path.is_dir():
-        raise OutputError(f"--out {path}: exists and is not a folder")
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        probe = path / f".write-test-{threading.get_ident()}"
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as exc:
-        raise OutputError(f"--out {path}: cannot write there: {exc.strerror or exc}") from None
 
 
 def display_missing(out: Path) -> str | None:
@@ -267,30 +250,6 @@ def _sumo_missing() -> str | None:
     except ImportError:
         return "libsumo is not installed: pip install libsumo (or run make install)"
     return None
-
-
-def slug(name: str) -> str:
-    """A scenario name as a folder name under runs/: letters, digits, ``.``, ``_`` and ``-`` only
-    (a name such as ``../../x`` cannot lead out of it)."""
-    import re
-
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._-") or "run"
-
-
-def _claim(out: Path, sc, seed, duration, control: str, force: bool) -> None:
-    """Check the scenario against its network and build its demand (exit 2 on an error, before
-    anything is written), then make ``out`` ready for the run."""
-    from runners.single import check, check_demand, claim_run_dir
-
-    check(sc)
-    check_demand(sc, seed, duration)
-    writable_dir(out)
-    try:
-        claim_run_dir(out, sc, seed, duration, control, force)
-    except ValueError as exc:
-        raise OutputError(str(exc)) from None
-    except OSError as exc:
-        raise OutputError(f"--out {out}: cannot clear the earlier run: {exc}") from None
 
 
 def _add_schema(sub) -> None:
@@ -425,17 +384,6 @@ def _cmd_run(args) -> int:
     _report(out)
     _print_summary(res.summary, out)
     return 0
-
-
-def _report(out: Path) -> None:
-    """The run's figures and ``report.html`` (single runs and baselines; a sweep's runs get none)."""
-    from nrtraffic.report import run_report
-    from runners.single import update_manifest
-
-    try:
-        run_report(out)
-    finally:
-        update_manifest(out)
 
 
 def _print_summary(s: dict, out: Path) -> None:

@@ -760,21 +760,31 @@ def seed_figure(df: pd.DataFrame, path: Path) -> None:
     plt.close(fig)
 
 
-def main(args) -> int:
-    if args.scheduler is None and args.workers < 1:
-        raise SweepError(f"--workers {args.workers}: need at least one worker process")
-    grid = parse_grid(args.grid)
-    controls = [NRTRAFFIC] + parse_baselines(args.baseline)
-    seeds = parse_seeds(args.seeds)
+def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]]], controls: list[str], out: Path,
+          duration_s: float | None = None, overrides: tuple[str, ...] = (), workers: int = 2,
+          scheduler: str | None = None, force: bool = False, progress: bool = True,
+          allow_outside: bool = False) -> pd.DataFrame:
+    """A whole sweep (``nrtraffic sweep``, ``nrtraffic.sweep``): check its size and every grid
+    point's configuration, refuse a resume of another configuration (unless ``force``), then
+    :func:`run_sweep`. Returns ``sweep.csv`` as a DataFrame."""
+    if scheduler is None and workers < 1:
+        raise SweepError(f"--workers {workers}: need at least one worker process")
     n = len(seeds) * len(controls) * math.prod(len(v) for _, v in grid)
-    if n > MAX_RUNS and not args.force:
+    if n > MAX_RUNS and not force:
         raise SweepError(f"the sweep has {n} runs, more than {MAX_RUNS}: narrow --seeds or --grid, or --force to "
                          "run them all")
-    jobs = plan(args.scenario, seeds, grid, controls, args.out, args.duration,
-                tuple(args.overrides), allow_outside=args.allow_outside)
-    check_resume(jobs, force=args.force)
-    remove_stale(args.out)
-    df = run_sweep(jobs, args.out, workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress)
+    jobs = plan(scenario_path, seeds, grid, controls, out, duration_s, tuple(overrides), allow_outside=allow_outside)
+    check_resume(jobs, force=force)
+    remove_stale(out)
+    return run_sweep(jobs, out, workers=workers, scheduler=scheduler, progress=progress)
+
+
+def main(args) -> int:
+    grid = parse_grid(args.grid)
+    controls = [NRTRAFFIC] + parse_baselines(args.baseline)
+    df = study(args.scenario, parse_seeds(args.seeds), grid, controls, args.out, args.duration, tuple(args.overrides),
+               workers=args.workers, scheduler=args.scheduler, force=args.force, progress=not args.no_progress,
+               allow_outside=args.allow_outside)
     print((Path(args.out) / "sweep.md").read_text())
     n_failed = int((df["status"] != "ok").sum())
     if n_failed:
