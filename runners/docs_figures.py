@@ -39,8 +39,8 @@ def browser() -> str:
 
 
 def screenshot(html: Path, png: Path, width: int = WIDTH_PX) -> Path:
-    """``html`` as headless Chromium draws it in a window ``width`` px wide, saved as ``png`` and
-    cut 24 px below the last row that is not the page's background."""
+    """``html`` as headless Chromium draws it in a window ``width`` px wide, saved as ``png`` (256
+    colours) and cut 24 px below the last row that is not the page's background."""
     import numpy as np
     from PIL import Image
 
@@ -56,9 +56,10 @@ def screenshot(html: Path, png: Path, width: int = WIDTH_PX) -> Path:
         a = np.asarray(img)
         background = a[-1, -1]
         rows = np.nonzero((a != background).any(axis=(1, 2)))[0]
-        bottom = min(a.shape[0], int(rows[-1]) + 24) if len(rows) else a.shape[0]
+        bottom = min(a.shape[0], int(rows[-1]) + 1 + 24) if len(rows) else a.shape[0]
         png.parent.mkdir(parents=True, exist_ok=True)
-        img.crop((0, 0, a.shape[1], bottom)).save(png, optimize=True)
+        page = img.crop((0, 0, a.shape[1], bottom))  # (256 colours: half the bytes, the same to the eye)
+        page.quantize(colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE).save(png, optimize=True)
     return png
 
 
