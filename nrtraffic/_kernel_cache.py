@@ -54,8 +54,12 @@ def compiled() -> bool:
     the source, or under ``NUMBA_CACHE_DIR`` or the user's cache where the package is read-only)."""
     import os
 
+    from numba import config
+
     from nrtraffic.control import batch
 
+    if config.DISABLE_JIT:  # (NUMBA_DISABLE_JIT=1: nothing is compiled)
+        return True
     try:
         return os.path.isfile(batch.advance._cache._cache_file._index_path)
     except AttributeError:  # another numba's layout: the package's own __pycache__

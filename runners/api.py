@@ -132,6 +132,15 @@ class Run:
 
         return read_trajectories(self.run_dir)
 
+    def _repr_html_(self) -> str:  # (a notebook shows a run as its headline figures)
+        import html
+
+        keys = ("scenario", "control", "seed", "status", "sim_time_s", "vehicles_spawned", "vehicles_completed",
+                "throughput_veh_h", "mean_delay_s", "los", "p95_delay_s", "collisions", "warnings")
+        rows = "".join(f"<tr><th style='text-align:left'>{k}</th><td>{html.escape(str(self.summary[k]))}</td></tr>"
+                       for k in keys if k in self.summary)
+        return f"<p>run directory <code>{html.escape(str(self.run_dir))}</code></p><table>{rows}</table>"
+
     def __repr__(self) -> str:
         s = self.summary
         return (f"Run({s.get('scenario')!r}, seed {s.get('seed')}, {s.get('control', 'nrtraffic')}, "

@@ -64,6 +64,8 @@ def test_baseline_returns_the_same_kind_of_run(tmp_path):
     assert res.run_dir == tmp_path / "b" and res.summary["control"] == "sumo_priority"
     assert set(res.vehicles["vehicle_id"]) == _sumo_vehicles(res.run_dir, before_s=60 - 0.1)
     assert not res.report.exists()
+    page = res._repr_html_()
+    assert "<td>sumo_priority</td>" in page and f"<td>{res.summary['vehicles_spawned']}</td>" in page
 
 
 def test_settings_as_python_values_are_the_scenario_keys():
