@@ -299,6 +299,8 @@ class Engine:
                     self.checkpoint(self._result(now - self.wall0, None, final=False))
                     next_checkpoint = time.perf_counter() + CHECKPOINT_WALL_S
             st.t = st.sumo.time
+            for vid in st.sumo.departed():  # (inserted in the last step: in the run, not waiting to enter)
+                self.admission.depart(vid, dt)
         finally:
             bar.close()
 
