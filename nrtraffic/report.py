@@ -17,7 +17,7 @@ HEADLINE = ["control", "scenario", "seed", "status", "measure_from_s", "measure_
             "min_bumper_gap_m", "max_lateral_dev_m", "max_tracking_error_m", "cbf_long_fallbacks",
             "vehicles_held", "real_time_factor"]
 
-RUN_FIGURES = ("movements.png", "delays.png", "queues.png", "time_space.png")
+RUN_FIGURES = ("movements.png", "delays.png", "queues.png", "time_space.png", "arterial.png")
 
 
 def run_figures(run_dir: Path) -> list[Path]:
@@ -26,7 +26,8 @@ def run_figures(run_dir: Path) -> list[Path]:
     the time-space diagram of the controlled vehicles (``time_space.png``)."""
     from nrtraffic import plots
     from nrtraffic.metrics import is_signalised
-    from nrtraffic.results import parse_queues, read_trajectories
+    from nrtraffic import timespace
+    from nrtraffic.results import PARTIAL_TRAJECTORIES, parse_queues
 
     run_dir = Path(run_dir)
     made = []
@@ -43,11 +44,16 @@ def run_figures(run_dir: Path) -> list[Path]:
         series = parse_queues(run_dir / "queues.xml", t0_s=summary.get("begin_s") or 0.0)
         if len(series):
             made.append(plots.queues(series, run_dir / "queues.png", summary.get("measure_from_s") or 0.0))
-    if doc.get("movements") and (run_dir / "trajectories.parquet").is_file():
-        traj = read_trajectories(run_dir)
-        if len(traj):
-            vehicles = pd.read_csv(run_dir / "vehicles.csv", dtype={"vehicle_id": str})
-            made.append(plots.time_space(traj, vehicles, doc, run_dir / "time_space.png"))
+    source = timespace.source_of(run_dir)
+    if doc.get("movements") and (source == "fcd" or (run_dir / "trajectories.parquet").is_file()
+                                 or (run_dir / PARTIAL_TRAJECTORIES).is_file()):
+        series = timespace.time_space_series(run_dir, source)
+        if any(len(df) for df in series.values()):
+            roads = timespace.roads(doc, {})
+            made.append(plots.time_space(series, roads, run_dir / "time_space.png", source))
+        series, arts = timespace.arterial_series(run_dir, source)
+        if any(len(df) for df in series.values()):
+            made.append(plots.arterial(series, arts, run_dir / "arterial.png", source))
     return made
 
 
