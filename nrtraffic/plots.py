@@ -179,7 +179,7 @@ def conflict_areas(movements: dict, path: Path) -> Path:
     for ax in list(axes.flat)[len(names):]:
         ax.axis("off")
     fig.suptitle("conflict areas (red) on each movement's path; grey: the movements it conflicts with", fontsize=9)
-    return _save(fig, path)
+    return _save(fig, path, rect=(0.0, 0.0, 1.0, 1.0 - 0.4 / (3.0 * rows)))  # (room for the title)
 
 
 def queues(series: pd.DataFrame, path: Path, t_from: float = 0.0) -> Path:
@@ -200,30 +200,36 @@ def queues(series: pd.DataFrame, path: Path, t_from: float = 0.0) -> Path:
     return _save(fig, path)
 
 
-def delay_by_movement(table: pd.DataFrame, path: Path, signalised: bool) -> Path:
+def delay_by_movement(table: pd.DataFrame, path: Path, signalised: bool, junction_of: dict | None = None) -> Path:
     """Mean delay per movement (``movements.csv``) as bars, with the HCM level-of-service bands
-    (signalised or unsignalised thresholds) behind them."""
+    (signalised or unsignalised thresholds) behind them; the 95th percentile as a tick. With
+    ``junction_of`` (approach -> junction) and several junctions, a row of bars per junction."""
     from nrtraffic.metrics import LOS_SIGNALISED, LOS_UNSIGNALISED
 
     bounds = LOS_SIGNALISED if signalised else LOS_UNSIGNALISED
     t = table[table["vehicles"] > 0]
-    labels = [f"{a}\n{m}" for a, m in zip(t["approach"], t["movement"])]
+    junction = t["approach"].map(junction_of or {}).fillna("")
+    groups = [(j, t[junction == j]) for j in sorted(set(junction))]
     top = max([bounds[-1] * 1.2] + [float(x) * 1.1 for x in t["p95_delay_s"].fillna(0)])
-    fig, ax = plt.subplots(figsize=(max(5.0, 0.6 * len(t) + 1.5), 3.6))
+    widest = max(len(g) for _, g in groups)
+    fig, axes = plt.subplots(len(groups), 1, figsize=(min(13.0, max(5.0, 0.6 * widest + 1.5)), 0.4 + 3.2 * len(groups)),
+                             squeeze=False)
     edges = (0.0, *bounds, top)
     shades = ["#e8f5e9", "#f1f8e9", "#fffde7", "#fff3e0", "#fbe9e7", "#ffebee"]
-    for k, letter in enumerate("ABCDEF"):
-        ax.axhspan(edges[k], edges[k + 1], color=shades[k], zorder=0)
-        ax.text(len(t) - 0.4, 0.5 * (edges[k] + edges[k + 1]), letter, fontsize=8, va="center", color="0.4")
-    x = range(len(t))
-    ax.bar(x, t["mean_delay_s"], color="tab:blue", zorder=2, label="mean")
-    ax.scatter(x, t["p95_delay_s"], color="k", marker="_", s=120, zorder=3, label="95th percentile")
-    ax.set_xticks(list(x), labels, fontsize=7)
-    ax.set_ylim(0, top)
-    ax.set_ylabel("delay [s]")
-    ax.set_title(f"delay per movement, HCM level of service ({'signalised' if signalised else 'unsignalised'} "
-                 "thresholds)", fontsize=9)
-    ax.legend(fontsize=7, loc="upper left")
+    for ax, (j, g) in zip(axes[:, 0], groups):
+        for k, letter in enumerate("ABCDEF"):
+            ax.axhspan(edges[k], edges[k + 1], color=shades[k], zorder=0)
+            ax.text(widest - 0.4, 0.5 * (edges[k] + edges[k + 1]), letter, fontsize=8, va="center", color="0.4")
+        x = range(len(g))
+        ax.bar(x, g["mean_delay_s"], color="tab:blue", zorder=2, label="mean")
+        ax.scatter(x, g["p95_delay_s"], color="k", marker="_", s=120, zorder=3, label="95th percentile")
+        ax.set_xticks(list(x), [f"{a}\n{m}" for a, m in zip(g["approach"], g["movement"])], fontsize=7)
+        ax.set_xlim(-0.6, widest - 0.2)
+        ax.set_ylim(0, top)
+        ax.set_ylabel(f"{'junction ' + j + ': ' if j else ''}delay [s]", fontsize=8)
+    axes[0, 0].set_title(f"delay per movement, HCM level of service ({'signalised' if signalised else 'unsignalised'} "
+                         "thresholds)", fontsize=9)
+    axes[0, 0].legend(fontsize=7, loc="upper left")
     return _save(fig, path)
 
 
