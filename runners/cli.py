@@ -170,6 +170,22 @@ def _add_replay(sub) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+def _add_compare(sub) -> None:
+    p = sub.add_parser(
+        "compare", help="finished runs of one scenario side by side (nrtraffic and SUMO's controls)",
+        description="Put finished runs of one scenario side by side, e.g. a run and its baselines: their headline "
+                    "figures, and per approach and per movement throughput, delay (mean, 95th percentile), level "
+                    "of service, stops and queues (mean, 95th percentile over the detector periods, longest), "
+                    "each run's own figures over its measurement window. Writes DIR/compare.html, "
+                    "DIR/compare_runs.csv, DIR/compare_movements.csv and DIR/compare_approaches.csv (one row "
+                    "per run and movement or approach) and prints the tables. Exit status 2 for a folder that is "
+                    "not a finished run, or runs of different scenarios.")
+    p.add_argument("run_dirs", type=Path, nargs="+", metavar="RUN_DIR",
+                   help="run directories written by run or baseline (or a sweep's runs), two or more")
+    p.add_argument("--out", type=Path, default=None, metavar="DIR",
+                   help="where to write the report (default: runs/<scenario>-compare)")
+
+
 def _add_bench(sub) -> None:
     p = sub.add_parser("bench", help="run the benchmarks and write their table",
                        description="Benchmark the compiled kernels, whole runs against SUMO alone on the same "
@@ -291,6 +307,7 @@ def _main(argv: list[str] | None) -> int:
     _add_sweep(sub)
     _add_robustness(sub)
     _add_replay(sub)
+    _add_compare(sub)
     _add_bench(sub)
     _add_schema(sub)
     args = parser.parse_args(argv)
@@ -337,6 +354,10 @@ def _main(argv: list[str] | None) -> int:
             from runners import replay
 
             return replay.main(args)
+        if args.command == "compare":
+            from runners import compare
+
+            return compare.main(args)
         if args.command == "bench":
             from runners import bench
 
