@@ -145,14 +145,15 @@ def approach_figures(run_dir: Path, summary: dict) -> pd.DataFrame:
 
 def _side_by_side(runs: list[Run], table: str, keys: list[str], figures: list[str]) -> pd.DataFrame:
     """The long table: one row per key and run (in the order given), the run's label and control,
-    and its figures."""
+    ``figures`` and then the table's other columns."""
     frames = []
     for order, r in enumerate(runs):
         t = getattr(r, table).copy()
         t.insert(len(keys), "run", r.label)
         t.insert(len(keys) + 1, "control", r.summary.get("control"))
         t["_order"] = order
-        frames.append(t[keys + ["run", "control"] + [f for f in figures if f in t] + ["_order"]])
+        first = keys + ["run", "control"] + [f for f in figures if f in t]
+        frames.append(t[first + [c for c in t.columns if c not in first]])
     df = pd.concat(frames, ignore_index=True)
     return df.sort_values(keys + ["_order"], kind="stable").drop(columns="_order").reset_index(drop=True)
 

@@ -112,3 +112,99 @@ def test_report_draws_time_space_and_arterial(corridor_run):
     for f in ("time_space.png", "arterial.png"):
         assert (corridor_run / f).stat().st_size > 20_000
     assert "corridor3" in page.split("</title>")[0]
+
+
+@pytest.fixture(scope="module")
+def cross4_pair(tmp_path_factory):
+    """cross4 for 120 s (measured from 30 s), with nrtraffic and SUMO's traffic light, by the
+    commands a user types."""
+    from runners.cli import main
+
+    base = tmp_path_factory.mktemp("cross4")
+    common = ["--duration", "120", "--no-progress", "--set", "outputs.warmup_s=30.0"]
+    assert main(["run", str(CROSS4), "--out", str(base / "nr"), *common]) == 0
+    assert main(["baseline", str(CROSS4), "--junction", "traffic_light", "--out", str(base / "tl"), *common]) == 0
+    return base
+
+
+def test_compare_puts_each_runs_own_figures_side_by_side(cross4_pair, capsys):
+    """compare's CSVs hold, per run, exactly the values of its movements.csv and approaches.csv;
+    the per-approach delay and stops are those of the approach's crossings in the window
+    (vehicles.csv, computed here by hand), and the 95th-percentile queue that of the detector
+    periods in queues.xml."""
+    from runners.cli import main
+
+    base = cross4_pair
+    out = base / "cmp"
+    capsys.readouterr()
+    assert main(["compare", str(base / "nr"), str(base / "tl"), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "cross4: nrtraffic vs sumo_traffic_light" in printed and "per movement:" in printed
+    runs = pd.read_csv(out / "compare_runs.csv")
+    assert runs["run"].tolist() == ["nrtraffic", "sumo_traffic_light"]
+    mv = pd.read_csv(out / "compare_movements.csv")
+    ap = pd.read_csv(out / "compare_approaches.csv")
+    assert len(mv) == 2 * 12 and len(ap) == 2 * 4
+    queues_seen = 0
+    for run, d in (("nrtraffic", base / "nr"), ("sumo_traffic_light", base / "tl")):
+        s = json.loads((d / "summary.json").read_text())
+        r = runs[runs["run"] == run].iloc[0]
+        for k in ("throughput_veh_h", "mean_delay_s", "vehicles_completed", "collisions"):
+            assert r[k] == pytest.approx(s[k], nan_ok=True) if s[k] is not None else pd.isna(r[k])
+        own = pd.read_csv(d / "movements.csv")
+        got = mv[mv["run"] == run].drop(columns=["run", "control"])
+        pd.testing.assert_frame_equal(got[own.columns].reset_index(drop=True), own.reset_index(drop=True))
+        own = pd.read_csv(d / "approaches.csv")
+        got = ap[ap["run"] == run].reset_index(drop=True)
+        for col in own.columns:
+            mine = "throughput_veh_h" if col == "served_veh_h" and "served_veh_h" not in got else col
+            assert got[mine].tolist() == pytest.approx(own[col].tolist(), nan_ok=True) if col != "approach" \
+                else got[col].tolist() == own[col].tolist(), col
+        # by hand: the approach's crossings that entered in the window and left
+        veh = pd.read_csv(d / "vehicles.csv")
+        w = veh[(veh["t_arrive_s"] >= s["measure_from_s"]) & (veh["t_arrive_s"] <= s["measure_to_s"])
+                & veh["t_exit_s"].notna()]
+        q = pd.DataFrame([(iv.get("id").split("|")[1], float(iv.get("begin")), float(iv.get("end")),
+                           float(iv.get("maxJamLengthInVehicles")))
+                          for iv in ET.parse(d / "queues.xml").getroot().iter("interval")],
+                         columns=["approach", "begin", "end", "max"])
+        q = q[(q["begin"] >= s["measure_from_s"]) & (q["end"] <= s["measure_to_s"])]
+        q = q.groupby(["approach", "begin"])["max"].sum()
+        for row in got.itertuples():
+            g = w[w["approach"] == row.approach]
+            assert row.vehicles == len(g)
+            assert row.mean_delay_s == pytest.approx(g["delay_s"].mean(), abs=1e-3, nan_ok=True)
+            assert row.stops_per_vehicle == pytest.approx(g["stops"].mean(), abs=1e-3, nan_ok=True)
+            periods = np.sort(q.loc[row.approach].to_numpy())
+            assert len(periods) == 9  # 30-120 s in 10 s periods
+            rank = 0.95 * (len(periods) - 1)
+            lo = periods[int(np.floor(rank))]
+            hi = periods[int(np.ceil(rank))]
+            assert row.p95_queue_veh == pytest.approx(lo + (rank - np.floor(rank)) * (hi - lo), abs=0.01)
+            assert row.max_queue_veh == periods.max()
+            queues_seen += periods.max() > 0
+    assert queues_seen >= 1  # the traffic light made a queue somewhere
+    page = (out / "compare.html").read_text()
+    assert "<title>cross4: nrtraffic vs sumo_traffic_light</title>" in page
+
+
+def test_compare_refuses_unfinished_runs_and_other_scenarios(cross4_pair, corridor_run, tmp_path, capsys):
+    """Exit 2, naming the folder, for a run that has not finished, a folder that is no run, runs of
+    two scenarios, or one run given twice; nothing is written."""
+    import shutil
+
+    from runners.cli import main
+
+    nr = cross4_pair / "nr"
+    running = tmp_path / "running"
+    shutil.copytree(nr, running)
+    s = json.loads((running / "summary.json").read_text())
+    (running / "summary.json").write_text(json.dumps({**s, "status": "running"}))
+    cases = [([nr, running], "not a finished run"), ([nr, tmp_path], "not a run directory"),
+             ([nr, corridor_run], "compare runs of one scenario"), ([nr, nr], "given twice"),
+             ([nr], "at least two")]
+    for dirs, message in cases:
+        capsys.readouterr()
+        assert main(["compare", *map(str, dirs), "--out", str(tmp_path / "cmp")]) == 2
+        assert message in capsys.readouterr().err
+    assert not (tmp_path / "cmp").exists()
