@@ -469,7 +469,26 @@ def write_tables(df: pd.DataFrame, out: Path, figures=sweep_figures) -> None:
     names = figures(df, summ, out)
     from nrtraffic.report import sweep_report
 
-    sweep_report(out, tables, names)
+    sweep_report(out, tables, names, title=sweep_title(df, out))
+
+
+def sweep_title(df: pd.DataFrame, out: Path) -> str:
+    """The title of a sweep's report: its scenarios (from its runs' summaries; the output folder's
+    name when no run finished), seeds, grid keys and controls."""
+    names = []
+    for d in df.loc[df["status"] == "ok", "run_dir"]:
+        try:
+            name = json.loads((Path(d) / "summary.json").read_text()).get("scenario")
+        except (OSError, ValueError):
+            continue
+        if name and name not in names:
+            names.append(name)
+    seeds = sorted(df["seed"].unique()) if len(df) else []
+    keys = grid_keys(df)
+    return (f"{', '.join(names) or Path(out).name}: sweep"
+            + (f", seeds {seeds[0]}-{seeds[-1]}" if len(seeds) > 1 else f", seed {seeds[0]}" if seeds else "")
+            + (f" over {', '.join(keys)}" if keys else "")
+            + f" ({', '.join(dict.fromkeys(df['control']))})")
 
 
 def mean_ci(r, k: str, nd: int = 1) -> str:
@@ -649,6 +668,22 @@ def driver_figure(df: pd.DataFrame, summ: pd.DataFrame, path: Path) -> None:
     ok = df[df["status"] == "ok"].copy()
     ok["pairs"] = sum(pd.to_numeric(ok.get(f"collisions_{k}"), errors="coerce").fillna(0)
                       for k in ("automated", "mixed", "human"))
+    if _one_point(summ):
+        for ax, k, label in zip(axes[:2], ("mean_delay_automated_s", "mean_delay_human_s"),
+                                ("mean delay, automated [s]", "mean delay, human drivers [s]")):
+            _bars(ax, summ, k, label)
+        pairs = [float(ok.loc[ok["control"] == c, "pairs"].mean()) for c in summ["control"]]
+        axes[2].bar(range(len(pairs)), pairs, width=0.6, color="0.5")
+        axes[2].set_xticks(range(len(pairs)), list(summ["control"]), rotation=15, fontsize=8)
+        axes[2].set_ylabel("colliding pairs per run")
+        axes[2].grid(alpha=0.3, axis="y")
+        point = _point_text(summ)
+        fig.suptitle("mixed traffic, by driver: mean over seeds ± 95 % confidence interval"
+                     + (f", {point}" if point else ""), fontsize=9)
+        fig.tight_layout()
+        fig.savefig(path, dpi=120)
+        plt.close(fig)
+        return
     for control, g in summ.groupby("control", sort=False):
         xs = x[g.index].to_numpy()
         order = xs.argsort()
@@ -696,33 +731,78 @@ def _x_axis(summ: pd.DataFrame):
     return "grid point", labels.map(order).astype(float), list(order)
 
 
-def figure(summ: pd.DataFrame, path: Path) -> None:
-    """Throughput, mean delay and fuel against the grid value, mean with its 95 % band per control
-    (a single grid point: error bars). An interval from fewer than ``MIN_SEEDS_FOR_CI`` seeds is
-    not drawn: it says little and its width would set the axis."""
+def _one_point(summ: pd.DataFrame) -> bool:
+    """The sweep has one grid point (its figures are bars per control, not lines)."""
+    keys = grid_keys(summ)
+    return not keys or len(summ[keys].drop_duplicates()) == 1
+
+
+def _bars(ax, summ: pd.DataFrame, k: str, label: str) -> bool:
+    """Figure ``k`` of a one-point sweep: a bar per control at its mean over seeds, with the 95 %
+    confidence interval where there are ``MIN_SEEDS_FOR_CI`` seeds or more; returns whether some
+    interval was left out for want of seeds."""
     from nrtraffic.plots import plt
 
+    controls = list(summ["control"])
+    m = summ[f"{k}_mean"].to_numpy(dtype=float)
+    c = summ[f"{k}_ci95"].fillna(0.0).to_numpy(dtype=float).copy()
+    few = summ["runs"].to_numpy() < MIN_SEEDS_FOR_CI
+    c[few] = 0.0
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    x = range(len(controls))
+    ax.bar(x, m, yerr=c, capsize=5, color=[colours[i % len(colours)] for i in x], alpha=0.85, width=0.6)
+    for i, (mi, ci) in enumerate(zip(m, c)):
+        if mi == mi:
+            ax.annotate(f"{mi:.1f}" + (f" ± {ci:.1f}" if ci > 0 else ""), (i, mi + ci), xytext=(0, 3),
+                        textcoords="offset points", ha="center", fontsize=7)
+    ax.set_xticks(list(x), controls, rotation=15, fontsize=8)
+    ax.set_ylabel(label)
+    ax.grid(alpha=0.3, axis="y")
+    ax.margins(y=0.15)
+    return bool(few.any())
+
+
+def _point_text(summ: pd.DataFrame) -> str:
+    keys = grid_keys(summ)
+    return ", ".join(f"{k} = {summ[k].iloc[0]}" for k in keys)
+
+
+def figure(summ: pd.DataFrame, path: Path) -> None:
+    """Throughput, mean delay and fuel against the grid value, mean with its 95 % band per control;
+    a single grid point: a bar per control with its 95 % interval. An interval from fewer than
+    ``MIN_SEEDS_FOR_CI`` seeds is not drawn: it says little and its width would set the axis."""
+    from nrtraffic.plots import plt
+
+    panels = (("throughput_veh_h", "throughput [veh/h]"), ("mean_delay_s", "mean delay [s]"),
+              ("mean_fuel_ml", "fuel [mL/veh]"))
+    fig, axes = plt.subplots(1, 3, figsize=(12.5, 3.8))
+    few_any = False
+    if _one_point(summ):
+        for ax, (k, label) in zip(axes, panels):
+            few_any |= _bars(ax, summ, k, label)
+        point = _point_text(summ)
+        fig.suptitle("mean over seeds ± 95 % confidence interval" + (f", {point}" if point else "")
+                     + (f" (no interval where fewer than {MIN_SEEDS_FOR_CI} seeds: unreliable)" if few_any else ""),
+                     fontsize=9)
+        fig.tight_layout()
+        fig.savefig(path, dpi=120)
+        plt.close(fig)
+        return
     xlabel, x, ticks = _x_axis(summ)
     if xlabel == "demand.rate_veh_h":
         xlabel = "demand [veh/h per approach]"
-    fig, axes = plt.subplots(1, 3, figsize=(12.5, 3.8))
-    few_any = False
     for control, g in summ.groupby("control", sort=False):
         xs = x[g.index]
         order = xs.argsort()
         few = g["runs"].to_numpy()[order] < MIN_SEEDS_FOR_CI
         few_any |= bool(few.any())
-        for ax, k, label in zip(axes, ("throughput_veh_h", "mean_delay_s", "mean_fuel_ml"),
-                                ("throughput [veh/h]", "mean delay [s]", "fuel [mL/veh]")):
+        for ax, (k, label) in zip(axes, panels):
             m = g[f"{k}_mean"].to_numpy()[order]
             c = g[f"{k}_ci95"].fillna(0.0).to_numpy()[order]
             c[few] = 0.0
             xo = xs.to_numpy()[order]
-            if len(xo) == 1:
-                ax.errorbar(xo, m, yerr=c, fmt="o", capsize=4, label=control)
-            else:
-                line, = ax.plot(xo, m, marker="o", label=control)
-                ax.fill_between(xo, m - c, m + c, color=line.get_color(), alpha=0.2, linewidth=0)
+            line, = ax.plot(xo, m, marker="o", label=control)
+            ax.fill_between(xo, m - c, m + c, color=line.get_color(), alpha=0.2, linewidth=0)
             ax.set(xlabel=xlabel, ylabel=label)
             ax.grid(alpha=0.3)
             if ticks:

@@ -208,3 +208,42 @@ def test_compare_refuses_unfinished_runs_and_other_scenarios(cross4_pair, corrid
         assert main(["compare", *map(str, dirs), "--out", str(tmp_path / "cmp")]) == 2
         assert message in capsys.readouterr().err
     assert not (tmp_path / "cmp").exists()
+
+
+def test_a_one_point_sweep_draws_a_bar_per_control_with_its_interval(tmp_path, monkeypatch):
+    """A sweep of one grid point: each panel a bar per control at the mean over the seeds, its
+    error bar the 95 % Student-t half-width (computed here from the seeds' values); a control with
+    fewer than 5 seeds gets no interval."""
+    import matplotlib.pyplot as plt
+    from scipy import stats
+
+    from runners import sweep
+
+    rng = np.random.default_rng(3)
+    rows = []
+    for control, n in (("nrtraffic", 6), ("traffic_light", 6), ("priority", 3)):
+        for seed in range(1, n + 1):
+            rows.append({"demand.rate_veh_h": 400, "seed": seed, "control": control, "status": "ok", "error": "",
+                         "throughput_veh_h": 1500 + 40 * rng.standard_normal(), "mean_delay_s": 5 + rng.random(),
+                         "mean_fuel_ml": 20 + rng.random(), "run_dir": "x"})
+    df = pd.DataFrame(rows)
+    summ = sweep.summarize(df)
+    figs = []
+    monkeypatch.setattr(plt, "close", lambda fig=None: figs.append(fig))
+    sweep.figure(summ, tmp_path / "sweep.png")
+    assert (tmp_path / "sweep.png").is_file()
+    axes = figs[0].axes
+    assert len(axes) == 3
+    for ax, k in zip(axes, ("throughput_veh_h", "mean_delay_s", "mean_fuel_ml")):
+        from matplotlib.container import BarContainer, ErrorbarContainer
+
+        bars = next(c for c in ax.containers if isinstance(c, BarContainer))
+        errs = next(c for c in ax.containers if isinstance(c, ErrorbarContainer))
+        labels = [t.get_text() for t in ax.get_xticklabels()]
+        assert labels == list(summ["control"]) and len(bars.patches) == 3
+        for bar, err, control in zip(bars.patches, errs.lines[2][0].get_segments(), labels):
+            x = df.loc[df["control"] == control, k].to_numpy()
+            assert bar.get_height() == pytest.approx(x.mean())
+            half = stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / np.sqrt(len(x)) if len(x) >= 5 else 0.0
+            assert (err[1][1] - err[0][1]) / 2 == pytest.approx(half)
+    assert "grid" not in figs[0].texts[0].get_text() and "rate_veh_h = 400" in figs[0].texts[0].get_text()
