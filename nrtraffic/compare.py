@@ -192,12 +192,12 @@ def compare(run_dirs: list[Path]) -> Comparison:
 
 
 # ------------------------------------------------------------------ presentation
-def _html_grouped(long: pd.DataFrame, keys: list[str], figures: list[str]) -> str:
-    """A long table as HTML, the runs of one key on adjacent rows under the key's cells (spanning
-    them), groups shaded in turn."""
+def html_grouped(long: pd.DataFrame, keys: list[str], figures: list[str], label: str = "run") -> str:
+    """A long table as HTML, the rows of one key (a run each, named in column ``label``) adjacent
+    under the key's cells (spanning them), groups shaded in turn."""
     from nrtraffic.report import display
 
-    t = display(long[keys + ["run"] + [f for f in figures if f in long]])
+    t = display(long[keys + [label] + [f for f in figures if f in long]])
     head = "".join(f"<th>{html.escape(c)}</th>" for c in t.columns)
     keyed = long[keys].astype(str).agg("|".join, axis=1).tolist()
     sizes = [len(list(g)) for _, g in itertools.groupby(keyed)]
@@ -257,15 +257,12 @@ def write(c: Comparison, out: Path) -> list[Path]:
             long = pd.concat([t.assign(run=lab) for lab, (_, t) in parts], ignore_index=True)
             figs = [f for f in first.columns[1:]]
             body += [f"<p class='note'>{html.escape(note)}</p>",
-                     _html_grouped(long.sort_values(key, kind="stable"), [key], figs)]
-    body += ["<h2>Approaches</h2>", _html_grouped(c.approaches, ["approach"], APPROACH_FIGURES)]
-    body += ["<h2>Movements</h2>", _html_grouped(c.movements, ["approach", "movement"], MOVEMENT_FIGURES)]
+                     html_grouped(long.sort_values(key, kind="stable"), [key], figs)]
+    body += ["<h2>Approaches</h2>", html_grouped(c.approaches, ["approach"], APPROACH_FIGURES)]
+    body += ["<h2>Movements</h2>", html_grouped(c.movements, ["approach", "movement"], MOVEMENT_FIGURES)]
     page = out / "compare.html"
     title = f"{c.scenario}: " + " vs ".join(labels)
-    text = _page(title, body).replace(
-        "</style>", "table.cmp tr.g{background:#f1f4f8}table.cmp tr.h{background:#fff}"
-                    "table.cmp tr.first td{border-top:1px solid #ccc}table.cmp td{white-space:nowrap}</style>", 1)
-    page.write_text(text)
+    page.write_text(_page(title, body))
     return [page, *paths]
 
 

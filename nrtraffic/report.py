@@ -37,7 +37,7 @@ FIELDS = {
     "approach": ("approach", "text"), "movement": ("movement", "text"), "vehicles": ("vehicles", "int"),
     "los_thresholds": ("LOS thresholds", "text"), "stops_per_vehicle": ("stops per vehicle", 2),
     "fuel_ml_per_vehicle": ("fuel [mL/veh]", 1), "served_veh_h": ("served [veh/h]", 1),
-    "mean_queue_veh": ("mean queue [veh]", 2), "max_queue_veh": ("longest queue [veh]", 0),
+    "mean_queue_veh": ("mean queue [veh]", 2), "max_queue_veh": ("longest queue [veh]", 1),
     "mean_queue_m": ("mean queue [m]", 1), "max_queue_m": ("longest queue [m]", 1),
     "p95_queue_veh": ("95th-percentile queue [veh]", 1),
     # summary.json junctions and corridor
@@ -45,7 +45,8 @@ FIELDS = {
     "travel_time_s": ("travel time [s]", 1), "delay_s": ("delay [s]", 1),
     "control_zone_m": ("control zone [m]", 1), "merging_zone_m": ("merging zone [m]", 1),
     # by driver
-    "driver": ("driver", "text"), "share": ("share", "pct"),
+    "driver": ("driver", "text"), "share": ("share", "pct"), "runs": ("runs", "int"),
+    "vehicles_per_run": ("vehicles per run", 1),
 }
 _UNITS = (("_veh_h", "veh/h"), ("_mps2", "m/s²"), ("_mps", "m/s"), ("_ml", "mL"), ("_veh", "veh"), ("_s", "s"),
           ("_m", "m"))
@@ -150,7 +151,9 @@ _STYLE = """body{font-family:system-ui,sans-serif;margin:2em auto;max-width:1100
 h1{font-size:1.4em}h2{font-size:1.1em;margin-top:1.6em;border-bottom:1px solid #ccc}
 table.t{border-collapse:collapse;font-size:.85em}table.t td,table.t th{padding:2px 8px;text-align:right}
 table.t tr:nth-child(even){background:#f4f4f4}img{max-width:100%}figure{margin:1em 0}
-.note{color:#555;font-size:.85em}.warn{color:#a00;font-size:.9em}"""
+.note{color:#555;font-size:.85em}.warn{color:#a00;font-size:.9em}
+table.cmp tr.g{background:#f1f4f8}table.cmp tr.h{background:#fff}table.cmp tr.first td{border-top:1px solid #ccc}
+table.cmp td{white-space:nowrap}"""
 
 
 def _page(title: str, body: list[str]) -> str:
@@ -248,10 +251,10 @@ def run_report(run_dir: Path) -> Path:
 
 
 def sweep_report(out_dir: Path, tables: list[tuple[str, pd.DataFrame]], figures: list[str],
-                 title: str | None = None) -> Path:
+                 title: str | None = None, sections: list[tuple[str, str, str]] = ()) -> Path:
     """``report.html`` of a sweep: its tables (each a note and a table of formatted cells, as in
-    sweep.md) and the figures of ``out_dir`` named in ``figures``; ``title`` names the study (by
-    default the output folder)."""
+    sweep.md), the figures of ``out_dir`` named in ``figures``, then ``sections`` (heading, note and
+    an HTML table each); ``title`` names the study (by default the output folder)."""
     out_dir = Path(out_dir)
     body = []
     for note, table in tables:
@@ -259,6 +262,8 @@ def sweep_report(out_dir: Path, tables: list[tuple[str, pd.DataFrame]], figures:
     for f in figures:
         if (out_dir / f).is_file():
             body.append(_img(out_dir / f))
+    for heading, note, table_html in sections:
+        body += [f"<h2>{html.escape(heading)}</h2>", f"<p class='note'>{html.escape(note)}</p>", table_html]
     out = out_dir / "report.html"
     out.write_text(_page(title or f"nrtraffic sweep: {out_dir.name}", body))
     return out

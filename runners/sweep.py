@@ -469,7 +469,80 @@ def write_tables(df: pd.DataFrame, out: Path, figures=sweep_figures) -> None:
     names = figures(df, summ, out)
     from nrtraffic.report import sweep_report
 
-    sweep_report(out, tables, names, title=sweep_title(df, out))
+    sections = []
+    side = side_by_side(df)
+    if side is not None:
+        from nrtraffic.compare import html_grouped
+
+        keys = grid_keys(df)
+        for name, (heading, by, side_table) in zip(("sweep_approaches.csv", "sweep_movements.csv"), side):
+            side_table.to_csv(out / name, index=False)
+            figs = [c for c in side_table.columns if c not in set(keys + by + ["control"])]
+            grouped = html_grouped(side_table.astype({k: str for k in keys}), keys + by, figs, label="control")
+            sections.append((heading, SIDE_NOTE, grouped))
+    sweep_report(out, tables, names, title=sweep_title(df, out), sections=sections)
+
+
+SIDE_NOTE = ("Per grid point, nrtraffic and its baselines side by side: each figure is the mean over the seeds of "
+             "the runs' own figures (movements.csv; per approach as nrtraffic compare computes them); a delay or "
+             "stops figure over the runs that had such vehicles (runs: how many had a delay); LOS: HCM level of "
+             "service of that mean delay. Also in sweep_movements.csv and sweep_approaches.csv.")
+SIDE_MOVEMENT = ["vehicles_per_run", "throughput_veh_h", "mean_delay_s", "p95_delay_s", "los", "stops_per_vehicle"]
+SIDE_APPROACH = ["throughput_veh_h", "mean_delay_s", "p95_delay_s", "los", "stops_per_vehicle", "mean_queue_veh",
+                 "p95_queue_veh", "max_queue_veh"]
+
+
+def side_by_side(df: pd.DataFrame):
+    """A sweep with baselines (two controls or more, one scenario): per grid point, control and
+    approach, and per movement, the mean over the seeds of each run's own figures; ``None``
+    otherwise. Returns ``[(heading, keys, table)]`` for approaches and movements."""
+    from nrtraffic.compare import approach_figures
+    from nrtraffic.metrics import is_signalised, level_of_service
+
+    ok = df[df["status"] == "ok"]
+    if ok["control"].nunique() < 2:
+        return None
+    keys = grid_keys(df)
+    mv, ap, scenarios, signalised = [], [], set(), {}
+    for _, r in ok.iterrows():
+        d = Path(r["run_dir"])
+        try:
+            s = json.loads((d / "summary.json").read_text())
+            m = pd.read_csv(d / "movements.csv")
+            a = approach_figures(d, s)
+        except (OSError, ValueError, KeyError):
+            continue
+        scenarios.add(s.get("scenario"))
+        signalised[r["control"]] = bool(s.get("signalised", is_signalised(r["control"])))
+        for t, rows in ((m, mv), (a, ap)):
+            t = t.assign(control=r["control"], seed=r["seed"], **{k: r[k] for k in keys})
+            if "vehicles" in t:
+                t = t.rename(columns={"vehicles": "vehicles_per_run"})
+            rows.append(t)
+    if len(scenarios) != 1 or not mv:
+        return None
+    out = []
+    for heading, frames, by, figs in (("Approaches, by control", ap, ["approach"], SIDE_APPROACH),
+                                      ("Movements, by control", mv, ["approach", "movement"], SIDE_MOVEMENT)):
+        long = pd.concat(frames, ignore_index=True)
+        figs = [f for f in figs if f in long and f != "los"]
+        rows = []
+        for point, g in long.groupby(keys + by + ["control"], sort=True, dropna=False):
+            row = dict(zip(keys + by + ["control"], point))
+            vals = g[figs].apply(pd.to_numeric, errors="coerce")
+            row["runs"] = int(vals["mean_delay_s"].notna().sum())
+            row.update({f: round(float(vals[f].mean()), 3) if vals[f].notna().any() else None for f in figs})
+            delay = row.get("mean_delay_s")
+            row["los"] = None if delay is None else level_of_service(delay, signalised[row["control"]])
+            rows.append(row)
+        table = pd.DataFrame(rows)
+        order = {c: i for i, c in enumerate(dict.fromkeys(df["control"]))}  # nrtraffic first, as run
+        table = table.sort_values(keys + by + ["control"], key=lambda c: c.map(order) if c.name == "control" else c,
+                                  kind="stable").reset_index(drop=True)
+        cols = keys + by + ["control", "runs"] + [f for f in (SIDE_APPROACH if by == ["approach"] else SIDE_MOVEMENT)
+                                                 if f in table]
+        out.append((heading, by, table[cols]))
+    return out
 
 
 def sweep_title(df: pd.DataFrame, out: Path) -> str:

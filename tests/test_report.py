@@ -247,3 +247,36 @@ def test_a_one_point_sweep_draws_a_bar_per_control_with_its_interval(tmp_path, m
             half = stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / np.sqrt(len(x)) if len(x) >= 5 else 0.0
             assert (err[1][1] - err[0][1]) / 2 == pytest.approx(half)
     assert "grid" not in figs[0].texts[0].get_text() and "rate_veh_h = 400" in figs[0].texts[0].get_text()
+
+
+def test_a_sweep_with_baselines_puts_the_controls_side_by_side(cross4_pair, tmp_path):
+    """A sweep's per-movement and per-approach tables by control: with the two cross4 runs as two
+    seeds of each control, each figure is the mean of the two runs' own (movements.csv,
+    compare's approach figures), the level of service that of the mean delay."""
+    from nrtraffic.compare import approach_figures
+    from nrtraffic.metrics import level_of_service
+    from runners import sweep
+
+    nr, tl = cross4_pair / "nr", cross4_pair / "tl"
+    df = pd.DataFrame([{"demand.rate_veh_h": 400, "seed": seed, "control": c, "status": "ok", "error": "",
+                        "run_dir": str(d), "throughput_veh_h": 1.0, "mean_delay_s": 1.0, "mean_fuel_ml": 1.0}
+                       for seed in (1, 2) for c, d in (("nrtraffic", nr), ("traffic_light", tl))])
+    (appr_heading, _, appr), (mv_heading, _, mv) = sweep.side_by_side(df)
+    assert len(mv) == 2 * 12 and len(appr) == 2 * 4
+    assert mv["control"].tolist()[:2] == ["nrtraffic", "traffic_light"]
+    for control, d, signalised in (("nrtraffic", nr, False), ("traffic_light", tl, True)):
+        own = pd.read_csv(d / "movements.csv")
+        got = mv[mv["control"] == control].reset_index(drop=True)
+        assert got["vehicles_per_run"].tolist() == own["vehicles"].tolist()
+        assert got["mean_delay_s"].tolist() == pytest.approx(own["mean_delay_s"].round(3).tolist(), nan_ok=True)
+        assert got["runs"].tolist() == (2 * own["mean_delay_s"].notna()).tolist()
+        for delay, los in zip(got["mean_delay_s"], got["los"]):
+            assert los == (level_of_service(delay, signalised) if delay == delay else None) or pd.isna(los)
+        own = approach_figures(d, json.loads((d / "summary.json").read_text()))
+        got = appr[appr["control"] == control].reset_index(drop=True)
+        for col in ("throughput_veh_h", "p95_queue_veh", "max_queue_veh"):
+            assert got[col].tolist() == pytest.approx(own[col].round(3).tolist(), nan_ok=True), col
+    sweep.write_tables(df, tmp_path)
+    page = (tmp_path / "report.html").read_text()
+    assert "<title>cross4: sweep, seeds 1-2 over demand.rate_veh_h (nrtraffic, traffic_light)</title>" in page
+    assert "Movements, by control" in page and (tmp_path / "sweep_movements.csv").is_file()
