@@ -100,8 +100,10 @@ RUN_FIGURES = ("movements.png", "delays.png", "queues.png", "time_space.png", "a
 
 def run_figures(run_dir: Path) -> list[Path]:
     """The figures of a run directory that its files allow: conflict areas (``movements.png``),
-    delay per movement with the LOS bands (``delays.png``), queues per approach (``queues.png``) and
-    the time-space diagram of the controlled vehicles (``time_space.png``)."""
+    delay per movement with the LOS bands (``delays.png``), queues per approach (``queues.png``),
+    the time-space diagram per approach road (``time_space.png``) and, on a corridor, the arterial
+    diagram (``arterial.png``); both of every vehicle where the run wrote fcd.xml, else of the
+    controlled vehicles while under control (:mod:`nrtraffic.timespace`)."""
     from nrtraffic import plots
     from nrtraffic.metrics import is_signalised
     from nrtraffic import timespace
