@@ -134,7 +134,7 @@ def approach_figures(run_dir: Path, summary: dict) -> pd.DataFrame:
     for col in per.columns:
         if col not in appr:
             appr[col] = appr["approach"].map(per[col])
-    q = parse_queues(run_dir / "queues.xml")
+    q = parse_queues(run_dir / "queues.xml", t0_s=float(summary.get("begin_s") or 0.0))
     if len(q):
         q = q[(q["begin_s"] >= w0 - 1e-9) & (q["end_s"] <= w1 + 1e-9)]
     p95 = q.groupby("approach")["max_queue_veh"].quantile(0.95) if len(q) else pd.Series(dtype=float)

@@ -32,13 +32,14 @@ def _edge(lane: str) -> str:
     return lane.rsplit("_", 1)[0]
 
 
-def read_fcd_lanes(path: Path) -> pd.DataFrame:
-    """SUMO's floating-car data (``fcd.xml``) as rows ``t, vehicle_id, lane, pos`` (the front
-    bumper's distance from the start of the lane [m])."""
+def read_fcd_lanes(path: Path, t0_s: float = 0.0) -> pd.DataFrame:
+    """SUMO's floating-car data (``fcd.xml``) as rows ``t, vehicle_id, lane, pos``: time from the
+    run's start, SUMO's clock less ``t0_s`` (``scenario.begin_s``) [s], and the front bumper's
+    distance from the start of the lane [m]."""
     rows = []
     for _, el in ET.iterparse(path, events=("end",)):
         if el.tag == "timestep":
-            t = float(el.get("time"))
+            t = float(el.get("time")) - t0_s
             rows += [(t, v.get("id"), v.get("lane"), float(v.get("pos"))) for v in el.iter("vehicle")
                      if v.get("lane") is not None]
             el.clear()
@@ -78,7 +79,6 @@ class Road:
     junction: str
     lane_offset: dict[str, tuple[str, float]] = field(default_factory=dict)  # lane -> (movement, offset)
     edge_offset: dict[str, tuple[str, float]] = field(default_factory=dict)  # edge -> (movement, offset)
-    control_start: dict[str, float] = field(default_factory=dict)  # turn -> its control-zone entry [m]
     control_zone_start_m: float = 0.0
     merge_entry_m: float = 0.0
     merge_exit_m: float = 0.0
@@ -99,7 +99,6 @@ def roads(movements: dict, lengths: dict[str, float]) -> dict[str, Road]:
         r = out.setdefault(m["approach"], Road(m["approach"], m.get("junction", ""),
                                                control_zone_start_m=m["control_zone_start_m"],
                                                merge_entry_m=m["merge_entry_m"], merge_exit_m=m["merge_exit_m"]))
-        r.control_start[m["turn"]] = m["control_zone_start_m"]
         r.control_zone_start_m = min(r.control_zone_start_m, m["control_zone_start_m"])
         r.merge_entry_m = min(r.merge_entry_m, m["merge_entry_m"])
         r.merge_exit_m = max(r.merge_exit_m, m["merge_exit_m"])
@@ -146,31 +145,59 @@ def _legs(run_dir: Path) -> pd.DataFrame:
     return pd.read_csv(Path(run_dir) / "vehicles.csv", dtype={"vehicle_id": str})
 
 
-def _traj_by_leg(run_dir: Path, vehicles: pd.DataFrame) -> pd.DataFrame:
-    """The controlled vehicles' trajectory rows (``t, vehicle_id, s_m``), each with the leg it
-    belongs to (the crossing whose control zone the vehicle entered last): ``approach``,
-    ``movement``, ``segment``."""
+def movement_names(movements: dict, vehicles: pd.DataFrame) -> pd.Series:
+    """The name in ``movements.json`` of each crossing of ``vehicles.csv``: the movement of its
+    approach and turn that starts on its lane (a wider approach, or two roads of one turn, has
+    several of that approach and turn), else the first of that approach and turn."""
+    exact, loose = {}, {}
+    for name, m in movements["movements"].items():
+        exact.setdefault((m["approach"], m["turn"], m["lanes"][0]), name)
+        loose.setdefault((m["approach"], m["turn"]), name)
+    return pd.Series([exact.get((a, t, ln), loose.get((a, t))) for a, t, ln in
+                      zip(vehicles["approach"], vehicles["movement"], vehicles["lane"].astype(str))],
+                     index=vehicles.index, dtype=object)
+
+
+def _traj_by_leg(run_dir: Path, vehicles: pd.DataFrame, movements: dict) -> pd.DataFrame:
+    """The controlled vehicles' trajectory rows, each with the leg it belongs to (the crossing
+    whose control zone the vehicle entered last): ``approach``, ``movement`` (the turn), ``name``
+    (its movement in ``movements.json``), ``segment``, and ``s_m`` from the start of the approach
+    edge (the trajectories' is from the control-zone entry) [m]."""
     from nrtraffic.results import read_trajectories
 
     traj = read_trajectories(run_dir)[["t", "vehicle_id", "s_m"]].copy()
     traj["vehicle_id"] = traj["vehicle_id"].astype(str)
-    legs = vehicles[vehicles["t_enter_s"].notna()][["vehicle_id", "leg", "approach", "movement", "t_enter_s"]]
-    legs = legs.sort_values("t_enter_s").reset_index(drop=True)
+    legs = vehicles[vehicles["t_enter_s"].notna()].copy()
+    legs["name"] = movement_names(movements, legs)
+    legs = legs[["vehicle_id", "approach", "movement", "name", "t_enter_s"]].sort_values("t_enter_s")
+    legs = legs.reset_index(drop=True)
     legs["segment"] = legs.index + 1
     if traj.empty or legs.empty:
         return traj.iloc[0:0]
     traj = pd.merge_asof(traj.sort_values("t"), legs, left_on="t", right_on="t_enter_s", by="vehicle_id",
                          direction="backward")
     first = legs.drop_duplicates("vehicle_id").set_index("vehicle_id")  # rows before the first entry
-    for col in ("approach", "movement", "segment"):
+    for col in ("approach", "movement", "name", "segment"):
         traj[col] = traj[col].fillna(traj["vehicle_id"].map(first[col]))
-    return traj.dropna(subset=["segment"])
+    traj = traj.dropna(subset=["segment", "name"])
+    start = {k: m["control_zone_start_m"] for k, m in movements["movements"].items()}
+    traj["s_m"] = traj["s_m"] + traj["name"].map(start)
+    return traj
 
 
 def _frame(rows: list, drivers: dict) -> pd.DataFrame:
     df = pd.DataFrame(rows, columns=SERIES_COLUMNS[:5])
     df["driver"] = df["vehicle_id"].map(drivers).fillna("sumo")
     return df.sort_values(["segment", "t"], kind="stable").reset_index(drop=True)
+
+
+def _fcd(run_dir: Path) -> pd.DataFrame:
+    """The run's fcd.xml, its times from the run's start (summary.json ``begin_s``)."""
+    try:
+        t0 = float(json.loads((Path(run_dir) / "summary.json").read_text()).get("begin_s") or 0.0)
+    except (OSError, ValueError):
+        t0 = 0.0
+    return read_fcd_lanes(Path(run_dir) / "fcd.xml", t0)
 
 
 def source_of(run_dir: Path) -> str:
@@ -197,7 +224,7 @@ def time_space_series(run_dir: Path, source: str | None = None) -> dict[str, pd.
     panels = roads(doc, lane_lengths(run_dir) if source == "fcd" else {})
     drivers = _drivers(vehicles)
     if source == "fcd":
-        fcd = read_fcd_lanes(run_dir / "fcd.xml")
+        fcd = _fcd(run_dir)
         rows = _segments_from_fcd(fcd, panels, lambda name, lane: _edge(lane) == name)
         # a vehicle's turn where its path never left the approach edge: from vehicles.csv
         turn = {(v, a): m for v, a, m in zip(vehicles["vehicle_id"], vehicles["approach"], vehicles["movement"])}
@@ -208,16 +235,14 @@ def time_space_series(run_dir: Path, source: str | None = None) -> dict[str, pd.
             df["movement"] = [k if isinstance(k, str) and k else m for k, m in zip(known, df["movement"])]
             out[name] = df
         return out
-    traj = _traj_by_leg(run_dir, vehicles)
+    traj = _traj_by_leg(run_dir, vehicles, doc)
     if traj.empty:
         return {name: _frame([], drivers) for name in panels}
     out = {}
     for name, road in panels.items():
-        g = traj[traj["approach"] == name]
-        s = g["s_m"] + g["movement"].map(road.control_start)  # (s_m is from the control-zone entry)
-        keep = s <= road.top_m
-        g, s = g[keep], s[keep]
-        out[name] = _frame(list(zip(g["vehicle_id"], g["segment"].astype(int), g["t"], s, g["movement"])), drivers)
+        g = traj[(traj["approach"] == name) & (traj["s_m"] <= road.top_m)]
+        out[name] = _frame(list(zip(g["vehicle_id"], g["segment"].astype(int), g["t"], g["s_m"], g["movement"])),
+                           drivers)
     return out
 
 
@@ -291,19 +316,16 @@ def arterial_series(run_dir: Path, source: str | None = None) -> tuple[dict[str,
     vehicles = _legs(run_dir)
     drivers = _drivers(vehicles)
     if (source or source_of(run_dir)) == "fcd":
-        fcd = read_fcd_lanes(run_dir / "fcd.xml")
+        fcd = _fcd(run_dir)
         rows = _segments_from_fcd(fcd, arts, lambda name, lane: arts[name].offset(lane) is not None)
         return {name: _frame(r, drivers).assign(movement="") for name, r in rows.items()}, arts
-    traj = _traj_by_leg(run_dir, vehicles)
+    traj = _traj_by_leg(run_dir, vehicles, doc)
     if traj.empty:
         return {name: _frame([], drivers) for name in arts}, arts
-    starts = {k: m["control_zone_start_m"] for k, m in doc["movements"].items()}
     out = {}
     for name, art in arts.items():
-        keys = traj["approach"] + "." + traj["movement"]
-        on = keys.isin({mv for mv, _ in art.lane_offset.values()})
-        g = traj[on]
-        s = g["approach"].map(art.approaches) + (g["approach"] + "." + g["movement"]).map(starts) + g["s_m"]
+        g = traj[traj["name"].isin({mv for mv, _ in art.lane_offset.values()})]
+        s = g["approach"].map(art.approaches) + g["s_m"]
         out[name] = _frame(list(zip(g["vehicle_id"], g["segment"].astype(int), g["t"], s, g["movement"])),
                            drivers).assign(movement="")
     return out, arts

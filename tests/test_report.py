@@ -280,3 +280,26 @@ def test_a_sweep_with_baselines_puts_the_controls_side_by_side(cross4_pair, tmp_
     page = (tmp_path / "report.html").read_text()
     assert "<title>cross4: sweep, seeds 1-2 over demand.rate_veh_h (nrtraffic, traffic_light)</title>" in page
     assert "Movements, by control" in page and (tmp_path / "sweep_movements.csv").is_file()
+
+
+def test_time_space_of_a_run_that_starts_later_on_sumos_clock(tmp_path):
+    """cross4 started at 500 s on SUMO's clock (scenario.begin_s): fcd.xml's times are SUMO's, the
+    run's are from its start; the diagram's series from fcd.xml and from the controller's
+    trajectories agree on every vehicle's position at the same instants (within cg_to_front and a
+    SUMO step at the speed limit), and so they are on the run's clock."""
+    from runners.single import run_scenario
+
+    sc = scenario.load(CROSS4, ["outputs.sumo_fcd=true", "outputs.warmup_s=0.0", "scenario.begin_s=500.0"])
+    out = tmp_path / "run"
+    run_scenario(sc, out, duration_s=80.0)
+    fcd = timespace.time_space_series(out)
+    ctl = timespace.time_space_series(out, source="trajectories")
+    lead = sc.vehicle.params().cg_to_front
+    step = sc.sumo.step_length_s * sc.planning.v_max_mps
+    compared = 0
+    for road in fcd:
+        assert fcd[road]["t"].between(0.0, 80.0).all()
+        j = fcd[road].merge(ctl[road], on=["vehicle_id", "t"], suffixes=("_fcd", "_ctl"))
+        assert (j["s_m_fcd"] - j["s_m_ctl"]).between(lead - 0.5, lead + step + 0.5).all(), road
+        compared += len(j)
+    assert compared > 500
