@@ -195,6 +195,8 @@ def queues(series: pd.DataFrame, path: Path, t_from: float = 0.0) -> Path:
     ax.set_xlabel("time [s]")
     ax.set_ylabel("queue [vehicles]")
     ax.set_ylim(0, max(1.0, float(series["max_queue_veh"].max()) * 1.1))
+    if float(series["max_queue_veh"].max()) == 0.0:
+        ax.text(0.5, 0.5, "no vehicle queued on any approach", transform=ax.transAxes, ha="center", color="0.4")
     ax.set_title("queue per approach (solid: longest jam in each 10 s; dashed: its time mean)", fontsize=9)
     ax.legend(fontsize=7, ncol=2)
     return _save(fig, path)
@@ -311,7 +313,7 @@ def arterial(series: dict, arts: dict, path: Path, source: str) -> Path:
     ``arts`` from :func:`nrtraffic.timespace.arterial_series`): each vehicle's distance along the
     arterial against time; each junction's merging zone shaded and named."""
     names = sorted(arts)
-    fig, axes = plt.subplots(len(names), 1, figsize=(8.0, 3.4 * len(names) + 0.6), sharex=True, squeeze=False)
+    fig, axes = plt.subplots(len(names), 1, figsize=(10.5, 3.4 * len(names) + 0.6), sharex=True, squeeze=False)
     used: set = set()
     t_max = max([float(df["t"].max()) for df in series.values() if len(df)] + [1.0])
     for ax, name in zip(axes[:, 0], names):

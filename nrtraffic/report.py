@@ -247,6 +247,9 @@ def run_report(run_dir: Path) -> Path:
     figs = [run_dir / f for f in RUN_FIGURES if (run_dir / f).is_file()]
     if figs:
         body += ["<h2>Figures</h2>"] + [_img(f) for f in figs]
+    if (run_dir / "movements.json").is_file() and not (run_dir / "time_space.png").is_file():
+        body.append("<p class='note'>No time-space diagram: the run has no controlled vehicles and no SUMO "
+                    "floating-car data; run it with --set outputs.sumo_fcd=true to draw every vehicle.</p>")
     out = run_dir / "report.html"
     out.write_text(_page(_run_title(s), body))
     return out
