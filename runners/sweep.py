@@ -747,6 +747,11 @@ def driver_figure(df: pd.DataFrame, summ: pd.DataFrame, path: Path) -> None:
             _bars(ax, summ, k, label)
         pairs = [float(ok.loc[ok["control"] == c, "pairs"].mean()) for c in summ["control"]]
         axes[2].bar(range(len(pairs)), pairs, width=0.6, color="0.5")
+        for i, v in enumerate(pairs):
+            if v == v:
+                axes[2].annotate(f"{v:.2f}", (i, v), xytext=(0, 3), textcoords="offset points", ha="center",
+                                 fontsize=7)
+        axes[2].set_ylim(0, max([1.0] + [1.2 * v for v in pairs if v == v]))
         axes[2].set_xticks(range(len(pairs)), list(summ["control"]), rotation=15, fontsize=8)
         axes[2].set_ylabel("colliding pairs per run")
         axes[2].grid(alpha=0.3, axis="y")
