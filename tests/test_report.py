@@ -105,13 +105,26 @@ def test_arterial_diagram_follows_the_through_trips_along_the_corridor(corridor_
         assert s.min() < arts[name].zones[0][1] and s.max() > arts[name].zones[-1][2], vid
 
 
-def test_report_draws_time_space_and_arterial(corridor_run):
-    from nrtraffic.report import run_report
+def test_report_draws_time_space_and_arterial_and_shows_the_corridor(corridor_run):
+    """corridor3's report: the time-space and arterial figures, a title naming the scenario, headers
+    with units, the served share in per cent, and each junction's and direction's figures of
+    summary.json (also as console text), rounded to their resolution."""
+    from nrtraffic.report import console_sections, run_report
 
     page = run_report(corridor_run).read_text()
     for f in ("time_space.png", "arterial.png"):
         assert (corridor_run / f).stat().st_size > 20_000
-    assert "corridor3" in page.split("</title>")[0]
+    assert page.split("</title>")[0].endswith("corridor3: nrtraffic, seed 1")
+    s = json.loads((corridor_run / "summary.json").read_text())
+    assert f"<td>{100 * s['served_share']:.1f} %</td>" in page and "<th>95th-percentile delay [s]</th>" in page
+    assert "mean_delay_s" not in page and "served_share" not in page
+    text = console_sections(s)
+    for j, f in s["junctions"].items():
+        row = f"<td>{j}</td>\n      <td>{f['vehicles']}</td>\n      <td>{f['throughput_veh_h']:.1f}</td>"
+        assert row in page, row
+        assert any(line.split()[:3] == [j, str(f["vehicles"]), f"{f['throughput_veh_h']:.1f}"]
+                   for line in text.splitlines()), j
+    assert s["corridor"] and all(f"<td>{d}</td>" in page and d in text for d in s["corridor"])
 
 
 @pytest.fixture(scope="module")
