@@ -432,6 +432,9 @@ def _print_summary(s: dict, out: Path) -> None:
                                                           "stops_per_vehicle": 2, "fuel_ml_per_vehicle": 1})
             print(f"\nper movement (movements.csv; LOS by the {thresholds} HCM thresholds):")
             print(m.to_string(index=False, na_rep="-"))
+    from nrtraffic.report import console_sections
+
+    print(console_sections(s), end="")  # (a corridor's junctions and travel times, the split by driver)
     for w in s.get("warnings") or ():
         print(f"warning: {w}")
     print(f"run directory: {out}")
