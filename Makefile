@@ -8,7 +8,7 @@ STAMP  := $(VENV)/.installed
 SCENARIO ?= sumo_scenarios/cross4/scenario.toml
 OUT    ?= runs
 
-.PHONY: install run test docs paper bench nets golden clean clean-cache
+.PHONY: install run test docs paper bench nets golden docs-figures clean clean-cache
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -52,6 +52,11 @@ golden: $(STAMP)
 	NUMBA_CPU_NAME=generic $(BIN)/nrtraffic run sumo_scenarios/cross4/scenario.toml --seed 7 --duration 75 \
 	    --set demand.end_s=25 --set demand.rate_veh_h=600 --set outputs.trajectory_interval_s=0.5 --set outputs.warmup_s=0 --out $(GOLDEN) --no-progress
 	rm -f $(addprefix $(GOLDEN)/,movements.png delays.png queues.png time_space.png report.html manifest.json)
+
+# the documentation's screenshots of reports (docs/report_cross4_counts.png), from fresh runs into
+# runs/docs; needs Chromium (runners/docs_figures.py lists them)
+docs-figures: $(STAMP)
+	$(BIN)/python -m runners.docs_figures
 
 # numba's on-disk cache does not notice edits in the modules a kernel calls: clear it after editing
 clean-cache:

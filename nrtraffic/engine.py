@@ -47,6 +47,7 @@ from nrtraffic.sumo.adapter import SumoSession, VehicleType, handover_tau_s, sum
 from nrtraffic.sumo.network import NetworkError
 
 CHECKPOINT_WALL_S = 10.0  # wall time between checkpoints of the figures (``checkpoint``) [s]
+GUI_MARGIN_M = 50.0  # sumo-gui opens on the merging zones with this much road around them [m]
 # parts of the tick timed for ``wall_time_breakdown_s``: the compiled kernel (with the Python that
 # reads its results), SUMO's step (with its collision list), reading and writing SUMO's vehicles,
 # admission (coordinator; its rear-end QPs also as ``qp``), leader search, the own collision check,
@@ -120,7 +121,7 @@ class Engine:
     def __init__(self, scenario, workdir: Path, seed: int | None = None, duration_s: float | None = None,
                  trajectories: TrajectoryWriter | None = None, progress: bool = False, control: bool = True,
                  network: Path | None = None, label: str = "nrtraffic", checkpoint=None, gui: bool = False,
-                 additional: tuple = (), signalised: bool | None = None):
+                 additional: tuple = (), signalised: bool | None = None, gui_delay_ms: float = 100.0):
         self.sc = scenario
         self.additional = tuple(additional)
         self.control = control
@@ -129,6 +130,7 @@ class Engine:
         self.signalised = metrics.is_signalised(label) if signalised is None else bool(signalised)
         self.checkpoint = checkpoint
         self.gui = gui
+        self.gui_delay_ms = gui_delay_ms
         self.seed = scenario.general.seed if seed is None else int(seed)
         self.duration = scenario.general.duration_s if duration_s is None else float(duration_s)
         self.workdir = Path(workdir)
@@ -197,9 +199,12 @@ class Engine:
                 tripinfo=self.workdir / "tripinfo.xml" if o.sumo_tripinfo else None,
                 collisions=self.workdir / "collisions.xml" if o.sumo_collisions else None,
                 fcd=self.workdir / "fcd.xml" if o.sumo_fcd else None,
-                extra_args=self.sc.sumo.extra_args + detectors, gui=self.gui, begin_s=self.sc.general.begin_s)
+                extra_args=self.sc.sumo.extra_args + detectors, gui=self.gui, begin_s=self.sc.general.begin_s,
+                gui_delay_ms=self.gui_delay_ms)
             with st.sumo:
                 self._build_junctions(st)
+                if self.gui:
+                    self._show_junctions()
                 self._loop()
         except NetworkError:
             if self.traj is not None:
@@ -241,6 +246,19 @@ class Engine:
         for j in self.layout.junctions.values():
             j.coord = Coordinator(self.sc.coordinator, self.sc.planning, j.relations, areas=j.conflict_areas)
 
+    def _show_junctions(self) -> None:
+        """sumo-gui opens on the controlled junctions: their merging zones with ``GUI_MARGIN_M``
+        around them (a plain road: the network as sumo-gui opens it); says on stderr what it shows."""
+        centres = [(j.xy, j.merging_zone_m / 2.0) for j in self.layout.junctions.values() if j.xy is not None]
+        if not centres:
+            return
+        box = self.st.sumo.show(min(x - r for (x, _), r in centres) - GUI_MARGIN_M,
+                                min(y - r for (_, y), r in centres) - GUI_MARGIN_M,
+                                max(x + r for (x, _), r in centres) + GUI_MARGIN_M,
+                                max(y + r for (_, y), r in centres) + GUI_MARGIN_M)
+        print(f"sumo-gui: showing {', '.join(self.layout.junctions)} (x {box[0]:.0f} to {box[2]:.0f} m, "
+              f"y {box[1]:.0f} to {box[3]:.0f} m), {self.gui_delay_ms:g} ms delay per step", file=sys.stderr, flush=True)
+
     def _loop(self) -> None:
         """Tick until the duration is reached (or, with none, until every vehicle has left), with
         progress and checkpoints."""
@@ -281,6 +299,8 @@ class Engine:
                     self.checkpoint(self._result(now - self.wall0, None, final=False))
                     next_checkpoint = time.perf_counter() + CHECKPOINT_WALL_S
             st.t = st.sumo.time
+            for vid in st.sumo.departed():  # (inserted in the last step: in the run, not waiting to enter)
+                self.admission.depart(vid, dt)
         finally:
             bar.close()
 

@@ -13,8 +13,8 @@ import pandas as pd  # noqa: E402
 G = 9.81  # [m/s^2]
 
 
-def _save(fig, path: Path) -> Path:
-    fig.tight_layout()
+def _save(fig, path: Path, rect=(0.0, 0.0, 1.0, 1.0)) -> Path:
+    fig.tight_layout(rect=rect)
     fig.savefig(path, dpi=130)
     plt.close(fig)
     return path
@@ -179,7 +179,7 @@ def conflict_areas(movements: dict, path: Path) -> Path:
     for ax in list(axes.flat)[len(names):]:
         ax.axis("off")
     fig.suptitle("conflict areas (red) on each movement's path; grey: the movements it conflicts with", fontsize=9)
-    return _save(fig, path)
+    return _save(fig, path, rect=(0.0, 0.0, 1.0, 1.0 - 0.4 / (3.0 * rows)))  # (room for the title)
 
 
 def queues(series: pd.DataFrame, path: Path, t_from: float = 0.0) -> Path:
@@ -195,62 +195,140 @@ def queues(series: pd.DataFrame, path: Path, t_from: float = 0.0) -> Path:
     ax.set_xlabel("time [s]")
     ax.set_ylabel("queue [vehicles]")
     ax.set_ylim(0, max(1.0, float(series["max_queue_veh"].max()) * 1.1))
+    if float(series["max_queue_veh"].max()) == 0.0:
+        ax.text(0.5, 0.5, "no vehicle queued on any approach", transform=ax.transAxes, ha="center", color="0.4")
     ax.set_title("queue per approach (solid: longest jam in each 10 s; dashed: its time mean)", fontsize=9)
     ax.legend(fontsize=7, ncol=2)
     return _save(fig, path)
 
 
-def delay_by_movement(table: pd.DataFrame, path: Path, signalised: bool) -> Path:
+def delay_by_movement(table: pd.DataFrame, path: Path, signalised: bool, junction_of: dict | None = None) -> Path:
     """Mean delay per movement (``movements.csv``) as bars, with the HCM level-of-service bands
-    (signalised or unsignalised thresholds) behind them."""
+    (signalised or unsignalised thresholds) behind them; the 95th percentile as a tick. With
+    ``junction_of`` (approach -> junction) and several junctions, a row of bars per junction."""
     from nrtraffic.metrics import LOS_SIGNALISED, LOS_UNSIGNALISED
 
     bounds = LOS_SIGNALISED if signalised else LOS_UNSIGNALISED
     t = table[table["vehicles"] > 0]
-    labels = [f"{a}\n{m}" for a, m in zip(t["approach"], t["movement"])]
+    junction = t["approach"].map(junction_of or {}).fillna("")
+    groups = [(j, t[junction == j]) for j in sorted(set(junction))]
     top = max([bounds[-1] * 1.2] + [float(x) * 1.1 for x in t["p95_delay_s"].fillna(0)])
-    fig, ax = plt.subplots(figsize=(max(5.0, 0.6 * len(t) + 1.5), 3.6))
+    widest = max(len(g) for _, g in groups)
+    fig, axes = plt.subplots(len(groups), 1, figsize=(min(13.0, max(5.0, 0.6 * widest + 1.5)), 0.4 + 3.2 * len(groups)),
+                             squeeze=False)
     edges = (0.0, *bounds, top)
     shades = ["#e8f5e9", "#f1f8e9", "#fffde7", "#fff3e0", "#fbe9e7", "#ffebee"]
-    for k, letter in enumerate("ABCDEF"):
-        ax.axhspan(edges[k], edges[k + 1], color=shades[k], zorder=0)
-        ax.text(len(t) - 0.4, 0.5 * (edges[k] + edges[k + 1]), letter, fontsize=8, va="center", color="0.4")
-    x = range(len(t))
-    ax.bar(x, t["mean_delay_s"], color="tab:blue", zorder=2, label="mean")
-    ax.scatter(x, t["p95_delay_s"], color="k", marker="_", s=120, zorder=3, label="95th percentile")
-    ax.set_xticks(list(x), labels, fontsize=7)
-    ax.set_ylim(0, top)
-    ax.set_ylabel("delay [s]")
-    ax.set_title(f"delay per movement, HCM level of service ({'signalised' if signalised else 'unsignalised'} "
-                 "thresholds)", fontsize=9)
-    ax.legend(fontsize=7, loc="upper left")
+    for ax, (j, g) in zip(axes[:, 0], groups):
+        for k, letter in enumerate("ABCDEF"):
+            ax.axhspan(edges[k], edges[k + 1], color=shades[k], zorder=0)
+            ax.text(widest - 0.4, 0.5 * (edges[k] + edges[k + 1]), letter, fontsize=8, va="center", color="0.4")
+        x = range(len(g))
+        ax.bar(x, g["mean_delay_s"], color="tab:blue", zorder=2, label="mean")
+        ax.scatter(x, g["p95_delay_s"], color="k", marker="_", s=120, zorder=3, label="95th percentile")
+        ax.set_xticks(list(x), [f"{a}\n{m}" for a, m in zip(g["approach"], g["movement"])], fontsize=7)
+        ax.set_xlim(-0.6, widest - 0.2)
+        ax.set_ylim(0, top)
+        ax.set_ylabel(f"{'junction ' + j + ': ' if j else ''}delay [s]", fontsize=8)
+    axes[0, 0].set_title(f"delay per movement, HCM level of service ({'signalised' if signalised else 'unsignalised'} "
+                         "thresholds)", fontsize=9)
+    axes[0, 0].legend(fontsize=7, loc="upper left")
     return _save(fig, path)
 
 
-def time_space(traj: pd.DataFrame, vehicles: pd.DataFrame, movements: dict, path: Path) -> Path:
-    """Time-space diagram per approach: every controlled vehicle's distance along its path (from
-    the control-zone entry) against time, with the merging zone shaded; coloured by movement."""
-    mvs = movements["movements"]
-    approaches = sorted({m["approach"] for m in mvs.values()})
-    fig, axes = plt.subplots(len(approaches), 1, figsize=(8.0, 2.2 * len(approaches)), sharex=True, squeeze=False)
-    colours = {"left": "tab:orange", "straight": "tab:blue", "right": "tab:green", "uturn": "tab:purple",
-               "through": "tab:blue"}
-    info = vehicles.set_index("vehicle_id")[["approach", "movement"]]
-    traj = traj.join(info, on="vehicle_id")
-    for ax, appr in zip(axes[:, 0], approaches):
-        zone = [m for m in mvs.values() if m["approach"] == appr]
-        d0 = min(m["merge_entry_m"] - m["control_zone_start_m"] for m in zone)
-        d1 = max(m["merge_exit_m"] - m["control_zone_start_m"] for m in zone)
-        ax.axhspan(d0, d1, color="0.9", zorder=0)
-        for vid, g in traj[traj["approach"] == appr].groupby("vehicle_id"):
-            ax.plot(g["t"], g["s_m"], lw=0.6, color=colours.get(g["movement"].iloc[0], "k"))
-        ax.set_ylabel(f"{appr}\n[m]", fontsize=8)
-        ax.set_ylim(0, d1 + 10)
-    handles = [plt.Line2D([], [], color=c, label=k) for k, c in colours.items()
-               if k in set(vehicles["movement"])]
+MOVEMENT_COLOURS = {"left": "tab:orange", "straight": "tab:blue", "right": "tab:green", "uturn": "tab:purple",
+                    "through": "tab:blue"}
+_SOURCE_NOTE = {"fcd": "every vehicle, its front bumper (SUMO's fcd.xml)",
+                "trajectories": "the controlled vehicles while under control, their centre of gravity\n"
+                                "(outputs.sumo_fcd = true draws every vehicle)"}
+
+
+def _draw_series(ax, df: pd.DataFrame) -> set:
+    """One line per segment of a time-space series (:mod:`nrtraffic.timespace`): coloured by
+    movement, human drivers dashed, vehicles in no table grey; returns the styles used."""
+    from matplotlib.collections import LineCollection
+
+    used = set()
+    groups: dict[tuple, list] = {}
+    for (_, mv, driver), g in df.groupby(["segment", "movement", "driver"], sort=False, dropna=False):
+        colour = "0.6" if driver == "sumo" else MOVEMENT_COLOURS.get(mv, "k")
+        style = "--" if driver == "human" else "-"
+        groups.setdefault((colour, style), []).append(g[["t", "s_m"]].to_numpy())
+        used.add(("sumo" if driver == "sumo" else mv, driver))
+    for (colour, style), lines in groups.items():
+        ax.add_collection(LineCollection(lines, colors=colour, linestyles=style, linewidths=0.6))
+    return used
+
+
+def _legend(fig, used: set) -> None:
+    """The movements' colours and drivers' styles used, below the figure."""
+    handles = [plt.Line2D([], [], color=c, label=k) for k, c in MOVEMENT_COLOURS.items()
+               if any(mv == k for mv, _ in used) and not (k == "through" and any(mv == "straight" for mv, _ in used))]
+    if any(d == "human" for _, d in used):
+        handles.append(plt.Line2D([], [], color="k", ls="--", label="human driver"))
+    if any(d == "sumo" for _, d in used):
+        handles.append(plt.Line2D([], [], color="0.6", label="other (SUMO)"))
     if handles:
-        axes[0, 0].legend(handles=handles, fontsize=7, ncol=len(handles), loc="upper left")
-    axes[0, 0].set_title("distance from the control-zone entry while under control (merging zone shaded)",
-                         fontsize=9)
+        fig.legend(handles=handles, fontsize=7, ncol=len(handles), loc="lower center", frameon=False)
+
+
+def time_space(series: dict, roads: dict, path: Path, source: str) -> Path:
+    """Time-space diagram, one panel per approach road (``series`` and ``roads`` from
+    :func:`nrtraffic.timespace.time_space_series` and :func:`~nrtraffic.timespace.roads`), a column
+    per junction: each vehicle's distance from the start of the approach edge against time, once
+    per road; the control-zone entry dotted, the merging zone shaded."""
+    junctions = sorted({r.junction for n, r in roads.items() if n in series})
+    columns = [sorted(n for n, r in roads.items() if r.junction == j and n in series) for j in junctions]
+    rows = max(len(c) for c in columns)
+    fig, axes = plt.subplots(rows, len(columns), figsize=(8.0 if len(columns) == 1 else 4.2 * len(columns),
+                                                          1.9 * rows + 0.9), sharex=True, squeeze=False)
+    used: set = set()
+    t_max = max([float(df["t"].max()) for df in series.values() if len(df)] + [1.0])
+    for col, names in enumerate(columns):
+        for row in range(rows):
+            ax = axes[row, col]
+            if row >= len(names):
+                ax.axis("off")
+                continue
+            name = names[row]
+            r = roads[name]
+            ax.axhspan(r.merge_entry_m, r.merge_exit_m, color="0.88", zorder=0)
+            ax.axhline(r.control_zone_start_m, color="0.5", ls=":", lw=0.8, zorder=0)
+            used |= _draw_series(ax, series[name])
+            ax.set_ylabel(f"{name} [m]", fontsize=8)
+            ax.set_ylim(0, r.top_m)
+            ax.set_xlim(0, t_max)
+            ax.tick_params(labelsize=7)
+            if row == 0 and len(columns) > 1:
+                ax.set_title(f"junction {r.junction}", fontsize=9)
+        axes[min(rows, len(names)) - 1, col].set_xlabel("time [s]", fontsize=8)
+        axes[min(rows, len(names)) - 1, col].xaxis.set_tick_params(labelbottom=True)
+    fig.suptitle("time-space per approach road: distance from the start of the road, control-zone entry dotted, "
+                 "merging zone shaded;\n" + _SOURCE_NOTE[source], fontsize=9)
+    _legend(fig, used)
+    return _save(fig, path, rect=(0, 0.03, 1, 1))
+
+
+def arterial(series: dict, arts: dict, path: Path, source: str) -> Path:
+    """Arterial (green-wave) diagram of a corridor, one panel per direction (``series`` and
+    ``arts`` from :func:`nrtraffic.timespace.arterial_series`): each vehicle's distance along the
+    arterial against time; each junction's merging zone shaded and named."""
+    names = sorted(arts)
+    fig, axes = plt.subplots(len(names), 1, figsize=(10.5, 3.4 * len(names) + 0.6), sharex=True, squeeze=False)
+    used: set = set()
+    t_max = max([float(df["t"].max()) for df in series.values() if len(df)] + [1.0])
+    for ax, name in zip(axes[:, 0], names):
+        art = arts[name]
+        for junction, a, b in art.zones:
+            ax.axhspan(a, b, color="0.85", zorder=0)
+            ax.annotate(junction, (t_max, 0.5 * (a + b)), xytext=(3, 0), textcoords="offset points", fontsize=7,
+                        va="center", annotation_clip=False)
+        used |= _draw_series(ax, series.get(name, pd.DataFrame(columns=["segment", "movement", "driver"])))
+        ax.set_ylabel(f"entering by {name}\n[m]", fontsize=8)
+        ax.set_ylim(0, art.top_m)
+        ax.set_xlim(0, t_max)
+        ax.tick_params(labelsize=7)
+    _legend(fig, used)
+    axes[0, 0].set_title("arterial: distance along the corridor per direction, merging zones shaded;\n"
+                         + _SOURCE_NOTE[source], fontsize=8)
     axes[-1, 0].set_xlabel("time [s]")
-    return _save(fig, path)
+    return _save(fig, path, rect=(0, 0.03, 1, 1))

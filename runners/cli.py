@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import argparse
 import sys
-import threading
 from pathlib import Path
 
 from nrtraffic.limits import MAX_DURATION_S, MAX_SEED  # (light: the flags are checked before SUMO loads)
 from runners import interrupts
+from runners.api import OutputError, slug, writable_dir  # noqa: F401 (shared with the Python API)
+from runners.api import claim as _claim
+from runners.api import write_report as _report
 
 
 def _bounded(parse, lo, hi, name: str, what: str):
@@ -30,6 +32,8 @@ _duration = _bounded(float, 0.0, MAX_DURATION_S, "a number of seconds",
                      f"the simulated time must be between 0 and {MAX_DURATION_S:.0f} s")
 _seed = _bounded(int, 0, MAX_SEED, "a whole number", f"a seed must be between 0 and {MAX_SEED}")
 _tolerance = _bounded(float, 0.0, float("inf"), "a number", "a tolerance must be finite and >= 0")
+GUI_DELAY_MS = 100.0  # sumo-gui's delay between steps by default [ms]: 0.1 s steps at about real time
+_gui_delay = _bounded(float, 0.0, 10000.0, "a number of milliseconds", "the delay must be between 0 and 10000 ms")
 
 
 def _add_run(sub) -> None:
@@ -49,8 +53,13 @@ def _add_run(sub) -> None:
                    help="override a scenario setting (repeatable), e.g. --set controller.horizon_s=0.3")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--gui", action="store_true",
-                   help="watch the run in sumo-gui (needs a display; vehicles coloured by state: grey approaching, "
-                        "amber waiting for their batch, red held, blue under control, green released)")
+                   help="watch the run in sumo-gui, opened on the controlled junctions (needs a display: DISPLAY, or "
+                        "xvfb-run; vehicles coloured by state: grey approaching, amber waiting for their batch, red "
+                        "held, blue under control, green released, white driven by SUMO, purple a human driver "
+                        "going to its stop line, pink a human driver whose crossing is reserved)")
+    p.add_argument("--gui-delay", type=_gui_delay, default=GUI_DELAY_MS, metavar="MS",
+                   help=f"with --gui, the wall time each SUMO step takes at least [ms] (default {GUI_DELAY_MS:g}; "
+                        "0: as fast as it can)")
 
 
 def _add_paper(sub) -> None:
@@ -161,6 +170,22 @@ def _add_replay(sub) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+def _add_compare(sub) -> None:
+    p = sub.add_parser(
+        "compare", help="finished runs of one scenario side by side (nrtraffic and SUMO's controls)",
+        description="Put finished runs of one scenario side by side, e.g. a run and its baselines: their headline "
+                    "figures, and per approach and per movement throughput, delay (mean, 95th percentile), level "
+                    "of service, stops and queues (mean, 95th percentile over the detector periods, longest), "
+                    "each run's own figures over its measurement window. Writes DIR/compare.html, "
+                    "DIR/compare_runs.csv, DIR/compare_movements.csv and DIR/compare_approaches.csv (one row "
+                    "per run and movement or approach) and prints the tables. Exit status 2 for a folder that is "
+                    "not a finished run, or runs of different scenarios.")
+    p.add_argument("run_dirs", type=Path, nargs="+", metavar="RUN_DIR",
+                   help="run directories written by run or baseline (or a sweep's runs), two or more")
+    p.add_argument("--out", type=Path, default=None, metavar="DIR",
+                   help="where to write the report (default: runs/<scenario>-compare)")
+
+
 def _add_bench(sub) -> None:
     p = sub.add_parser("bench", help="run the benchmarks and write their table",
                        description="Benchmark the compiled kernels, whole runs against SUMO alone on the same "
@@ -172,23 +197,58 @@ def _add_bench(sub) -> None:
                    help="short runs (120 s instead of 600 s; memory at 60 and 120 s): a smoke test, not the figures")
 
 
-class OutputError(ValueError):
-    """The output folder cannot be used."""
+class _Version(argparse.Action):
+    """``--version``: nrtraffic's version and SUMO's, then exit 0 (SUMO is not started)."""
+
+    def __init__(self, option_strings, dest, **kw):
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kw)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(version_text())
+        parser.exit(0)
 
 
-def writable_dir(path: Path) -> None:
-    """Refuse (exit 2) an output folder that is a file or cannot be created or written, before
-    anything runs."""
-    path = Path(path)
-    if path.exists() and not path.is_dir():
-        raise OutputError(f"--out {path}: exists and is not a folder")
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        probe = path / f".write-test-{threading.get_ident()}"
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as exc:
-        raise OutputError(f"--out {path}: cannot write there: {exc.strerror or exc}") from None
+def version_text() -> str:
+    """``nrtraffic X.Y.Z`` and ``SUMO X.Y.Z`` (the eclipse-sumo and libsumo packages installed),
+    one a line."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    from nrtraffic import __version__
+
+    def of(package: str) -> str | None:
+        try:
+            return version(package)
+        except PackageNotFoundError:
+            return None
+
+    sumo, lib = of("eclipse-sumo"), of("libsumo")
+    if sumo is None:
+        line = "SUMO not installed (pip install eclipse-sumo libsumo, or make install)"
+    else:
+        line = f"SUMO {sumo}" + ("" if lib == sumo else f" (libsumo {lib or 'not installed'})")
+    return f"nrtraffic {__version__}\n{line}"
+
+
+class DisplayError(OutputError):
+    """``--gui`` without a display (exit 2, before SUMO starts)."""
+
+
+def display_missing(out: Path) -> str | None:
+    """Why ``--gui`` cannot open sumo-gui here: on Linux and the BSDs, a graphical program needs
+    ``DISPLAY`` (X11) or ``WAYLAND_DISPLAY``; None where one is set, or on macOS and Windows. The
+    message names the virtual display to run under, and the run's ``.sumocfg`` to open after a
+    headless run."""
+    import os
+
+    if not sys.platform.startswith(("linux", "freebsd", "openbsd", "netbsd")):
+        return None
+    if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
+        return None
+    cfg = Path(out) / "sumo" / "run.sumocfg"
+    return ("--gui needs a display, and neither DISPLAY nor WAYLAND_DISPLAY is set (no desktop session, e.g. over "
+            "ssh or in CI). Run it under a virtual display: xvfb-run -a nrtraffic run ... --gui (apt-get install "
+            "xvfb); or run without --gui and then open the run's demand in sumo-gui on a machine with a display: "
+            f"sumo-gui -c {cfg} (SUMO driving every vehicle, without the controller)")
 
 
 def _sumo_missing() -> str | None:
@@ -206,30 +266,6 @@ def _sumo_missing() -> str | None:
     except ImportError:
         return "libsumo is not installed: pip install libsumo (or run make install)"
     return None
-
-
-def slug(name: str) -> str:
-    """A scenario name as a folder name under runs/: letters, digits, ``.``, ``_`` and ``-`` only
-    (a name such as ``../../x`` cannot lead out of it)."""
-    import re
-
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._-") or "run"
-
-
-def _claim(out: Path, sc, seed, duration, control: str, force: bool) -> None:
-    """Check the scenario against its network and build its demand (exit 2 on an error, before
-    anything is written), then make ``out`` ready for the run."""
-    from runners.single import check, check_demand, claim_run_dir
-
-    check(sc)
-    check_demand(sc, seed, duration)
-    writable_dir(out)
-    try:
-        claim_run_dir(out, sc, seed, duration, control, force)
-    except ValueError as exc:
-        raise OutputError(str(exc)) from None
-    except OSError as exc:
-        raise OutputError(f"--out {out}: cannot clear the earlier run: {exc}") from None
 
 
 def _add_schema(sub) -> None:
@@ -263,6 +299,7 @@ def _main(argv: list[str] | None) -> int:
         description="Co-simulation of signal-free intersections: SUMO + energy-optimal planning + "
                     "Newton-Raphson-flow tracking of a dynamic bicycle model.",
     )
+    parser.add_argument("--version", action=_Version, help="print the versions of nrtraffic and SUMO and exit")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_run(sub)
     _add_paper(sub)
@@ -270,6 +307,7 @@ def _main(argv: list[str] | None) -> int:
     _add_sweep(sub)
     _add_robustness(sub)
     _add_replay(sub)
+    _add_compare(sub)
     _add_bench(sub)
     _add_schema(sub)
     args = parser.parse_args(argv)
@@ -316,6 +354,10 @@ def _main(argv: list[str] | None) -> int:
             from runners import replay
 
             return replay.main(args)
+        if args.command == "compare":
+            from runners import compare
+
+            return compare.main(args)
         if args.command == "bench":
             from runners import bench
 
@@ -353,22 +395,16 @@ def _cmd_run(args) -> int:
     sc = scenario.load(args.scenario, args.overrides, allow_outside=args.allow_outside)
     seed = sc.general.seed if args.seed is None else args.seed
     out = args.out or Path("runs") / f"{slug(sc.general.name)}-seed{seed}"
+    if args.gui:
+        no_display = display_missing(out)
+        if no_display:
+            raise DisplayError(no_display)
     _claim(out, sc, seed, args.duration, "nrtraffic", args.force)
-    res = run_scenario(sc, out, seed=seed, duration_s=args.duration, progress=not args.no_progress, gui=args.gui)
+    res = run_scenario(sc, out, seed=seed, duration_s=args.duration, progress=not args.no_progress, gui=args.gui,
+                       gui_delay_ms=args.gui_delay)
     _report(out)
     _print_summary(res.summary, out)
     return 0
-
-
-def _report(out: Path) -> None:
-    """The run's figures and ``report.html`` (single runs and baselines; a sweep's runs get none)."""
-    from nrtraffic.report import run_report
-    from runners.single import update_manifest
-
-    try:
-        run_report(out)
-    finally:
-        update_manifest(out)
 
 
 def _print_summary(s: dict, out: Path) -> None:
@@ -401,6 +437,9 @@ def _print_summary(s: dict, out: Path) -> None:
                     m[col] = [fmt.format(v) if pd.notna(v) else "-" for v in m[col]]
             print(f"\nper movement (movements.csv; LOS by the {thresholds} HCM thresholds):")
             print(m.to_string(index=False, na_rep="-"))
+    from nrtraffic.report import console_sections
+
+    print(console_sections(s), end="")  # (a corridor's junctions and travel times, the split by driver)
     for w in s.get("warnings") or ():
         print(f"warning: {w}")
     print(f"run directory: {out}")

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from nrtraffic import _kernel_cache
 from nrtraffic import scenario as scenario_mod
 from nrtraffic.engine import Engine, RunFailed
 from nrtraffic.results import (RunResult, TrajectoryWriter, write_atomic, write_movements, write_summary, write_table,
@@ -123,10 +124,11 @@ def route_copies(sc: scenario_mod.Scenario) -> list[tuple[Path, str]]:
 
 
 def run_scenario(sc: scenario_mod.Scenario, out: Path, seed: int | None = None, duration_s: float | None = None,
-                 progress: bool = False, gui: bool = False) -> RunResult:
+                 progress: bool = False, gui: bool = False, gui_delay_ms: float = 100.0) -> RunResult:
     """Run ``sc`` and write the run directory ``out``; raises :class:`RunFailed` after writing what
-    was finished when the run stops early. ``gui``: in sumo-gui (:class:`~nrtraffic.sumo.adapter.SumoSession`)."""
-    return execute(sc, prepare_run_dir(sc, out), seed, duration_s, progress, gui=gui)
+    was finished when the run stops early. ``gui``: in sumo-gui (:class:`~nrtraffic.sumo.adapter.SumoSession`),
+    ``gui_delay_ms`` [ms] between its steps."""
+    return execute(sc, prepare_run_dir(sc, out), seed, duration_s, progress, gui=gui, gui_delay_ms=gui_delay_ms)
 
 
 def resolve(sc: scenario_mod.Scenario, seed: int | None, duration_s: float | None) -> scenario_mod.Scenario:
@@ -267,6 +269,8 @@ def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: 
         update_manifest(out)
         return RunFailed(summary["error"], RunResult(summary, pd.DataFrame(), out))
 
+    if engine_options.get("control", True):
+        _kernel_cache.announce()  # the first run after installing compiles the kernels (numba)
     try:
         interrupts.arm()  # a SIGTERM or Ctrl-C that came during the checks stops the run here
         engine = Engine(resolved, out, trajectories=writer, progress=progress, checkpoint=checkpoint,

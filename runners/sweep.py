@@ -34,6 +34,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from nrtraffic import _kernel_cache
 from nrtraffic.sumo.netbuild import BASELINES as SUMO_BASELINES
 
 NRTRAFFIC = "nrtraffic"
@@ -206,6 +207,7 @@ def run_job(spec: dict) -> dict:
         os._exit(70)  # fault injection (tests): this job's worker process dies
     tmp = final.parent / f".{final.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
     failed = final.parent / f"{final.name}.failed"
+    _kernel_cache.quiet()  # (the sweep said it before it started its workers)
     with _ONE_SIMULATION:
         try:
             sc = scenario.load(spec["scenario"], spec["overrides"], allow_outside=spec.get("allow_outside", False))
@@ -278,18 +280,82 @@ def sweep_figures(df: pd.DataFrame, summ: pd.DataFrame, out: Path) -> list[str]:
     return ["sweep.png", "sweep_seeds.png"]
 
 
+class Progress:
+    """How far a sweep is: a tqdm bar on a terminal; elsewhere (a file, a pipe, CI) a line on
+    stderr per finished run, or per 2 % of the runs when there are more than 50::
+
+        sweep: 7/40 runs done (1 failed), 3 min 10 s elapsed, about 15 min left; last: base/seed3/nrtraffic ok
+
+    ``total`` runs of which ``initial`` were finished before (a resumed sweep: not counted in the
+    time left); ``enabled`` False: nothing at all."""
+
+    def __init__(self, total: int, initial: int, enabled: bool = True, stream=None):
+        import sys
+        import time
+
+        self.stream = stream or sys.stderr
+        self.total, self.n, self.failed, self.initial = total, initial, 0, initial
+        self.t0 = time.monotonic()
+        self.lines = enabled and not self.stream.isatty()
+        self.every = max(1, total // 50)
+        self.bar = None
+        if enabled and not self.lines:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=total, initial=initial, desc="runs", unit="run", file=self.stream)
+        if self.lines:
+            self._print(f"sweep: {total - initial} run{'s' if total - initial != 1 else ''} to do"
+                        + (f" ({initial} of {total} finished before)" if initial else ""))
+
+    def done(self, job: Job, failed: bool) -> None:
+        """One more run finished (``failed``: recorded as failed)."""
+        import time
+
+        self.n += 1
+        self.failed += bool(failed)
+        if self.bar is not None:
+            self.bar.update(1)
+            self.bar.set_postfix(failed=self.failed, remaining=self.total - self.n, refresh=False)
+        elif self.lines and (self.n % self.every == 0 or self.n == self.total):
+            elapsed = time.monotonic() - self.t0
+            left = elapsed / (self.n - self.initial) * (self.total - self.n)
+            run = Path(job.run_dir)
+            self._print(f"sweep: {self.n}/{self.total} runs done ({self.failed} failed), {_duration(elapsed)} elapsed"
+                        + (f", about {_duration(left)} left" if self.n < self.total else "")
+                        + f"; last: {run.parent.parent.name}/{run.parent.name}/{run.name} "
+                        + ("failed" if failed else "ok"))
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+    def _print(self, text: str) -> None:
+        print(text, file=self.stream, flush=True)
+
+
+def _duration(s: float) -> str:
+    """A wall-clock time for a person: ``42 s``, ``3 min 10 s``, ``1 h 05 min``."""
+    s = int(round(s))
+    if s < 60:
+        return f"{s} s"
+    if s < 3600:
+        return f"{s // 60} min {s % 60:02d} s"
+    return f"{s // 3600} h {s % 3600 // 60:02d} min"
+
+
 def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | None = None,
               progress: bool = True, figures=sweep_figures) -> pd.DataFrame:
     """Run the jobs not yet finished on Dask, then write the tables and figures (``figures``, see
     :func:`write_tables`) from every run directory. Returns ``sweep.csv`` as a DataFrame."""
     import dask
     from dask.distributed import Client, LocalCluster, as_completed
-    from tqdm import tqdm
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     todo = [j for j in jobs if finished(j) is None]
     errors: dict[str, str] = {}
+    if todo and progress and any(j.control == NRTRAFFIC for j in todo):
+        _kernel_cache.announce()  # (the workers compile them; they say nothing themselves)
     if todo:
         # a worker that dies (e.g. killed by the OS) is one failure of that job, not three; and a
         # worker holds only the job it runs (saturation 1.0: the others wait at the scheduler), so
@@ -309,18 +375,14 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
             try:
                 futures = {client.submit(run_job, j.spec(), retries=1, pure=False,
                                          key=f"run-{uuid.uuid4().hex}"): j for j in todo}
-                bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="runs", unit="run",
-                           disable=None if progress else True)
-                n_failed = 0
+                report = Progress(len(jobs), len(jobs) - len(todo), progress)
                 for fut in as_completed(futures):
                     job = futures[fut]
                     if fut.status != "finished":
                         exc = fut.exception()
                         errors[job.run_dir] = f"{type(exc).__name__}: {exc}".strip()
-                        n_failed += 1
-                    bar.update(1)
-                    bar.set_postfix(failed=n_failed, remaining=bar.total - bar.n, refresh=False)
-                bar.close()
+                    report.done(job, job.run_dir in errors)
+                report.close()
             finally:
                 client.close()
                 if cluster is not None:
@@ -409,7 +471,99 @@ def write_tables(df: pd.DataFrame, out: Path, figures=sweep_figures) -> None:
     names = figures(df, summ, out)
     from nrtraffic.report import sweep_report
 
-    sweep_report(out, tables, names)
+    sections = []
+    side = side_by_side(df)
+    if side is not None:
+        from nrtraffic.compare import html_grouped
+
+        keys = grid_keys(df)
+        for name, (heading, by, side_table) in zip(("sweep_approaches.csv", "sweep_movements.csv"), side):
+            side_table.to_csv(out / name, index=False)
+            figs = [c for c in side_table.columns if c not in set(keys + by + ["control"])]
+            grouped = html_grouped(side_table.astype({k: str for k in keys}), keys + by, figs, label="control")
+            sections.append((heading, SIDE_NOTE, grouped))
+    sweep_report(out, tables, names, title=sweep_title(df, out), sections=sections)
+
+
+SIDE_NOTE = ("Per grid point, nrtraffic and its baselines side by side: each figure is the mean over the seeds of "
+             "the runs' own figures (movements.csv; per approach as nrtraffic compare computes them); a delay or "
+             "stops figure over the runs that had such vehicles (runs: how many had a delay); LOS: HCM level of "
+             "service of that mean delay. Also in sweep_movements.csv and sweep_approaches.csv.")
+SIDE_MOVEMENT = ["vehicles_per_run", "throughput_veh_h", "mean_delay_s", "p95_delay_s", "los", "stops_per_vehicle"]
+SIDE_APPROACH = ["throughput_veh_h", "mean_delay_s", "p95_delay_s", "los", "stops_per_vehicle", "mean_queue_veh",
+                 "p95_queue_veh", "max_queue_veh"]
+
+
+def side_by_side(df: pd.DataFrame):
+    """A sweep with baselines (two controls or more, one scenario): per grid point, control and
+    approach, and per movement, the mean over the seeds of each run's own figures; ``None``
+    otherwise. Returns ``[(heading, keys, table)]`` for approaches and movements."""
+    from nrtraffic.compare import approach_figures
+    from nrtraffic.metrics import is_signalised, level_of_service
+
+    ok = df[df["status"] == "ok"]
+    if ok["control"].nunique() < 2:
+        return None
+    keys = grid_keys(df)
+    mv, ap, scenarios, signalised = [], [], set(), {}
+    for _, r in ok.iterrows():
+        d = Path(r["run_dir"])
+        try:
+            s = json.loads((d / "summary.json").read_text())
+            m = pd.read_csv(d / "movements.csv")
+            a = approach_figures(d, s)
+        except (OSError, ValueError, KeyError):
+            continue
+        scenarios.add(s.get("scenario"))
+        signalised[r["control"]] = bool(s.get("signalised", is_signalised(r["control"])))
+        for t, rows in ((m, mv), (a, ap)):
+            t = t.assign(control=r["control"], seed=r["seed"], **{k: r[k] for k in keys})
+            if "vehicles" in t:
+                t = t.rename(columns={"vehicles": "vehicles_per_run"})
+            rows.append(t)
+    if len(scenarios) != 1 or not mv:
+        return None
+    out = []
+    for heading, frames, by, figs in (("Approaches, by control", ap, ["approach"], SIDE_APPROACH),
+                                      ("Movements, by control", mv, ["approach", "movement"], SIDE_MOVEMENT)):
+        long = pd.concat(frames, ignore_index=True)
+        figs = [f for f in figs if f in long and f != "los"]
+        rows = []
+        for point, g in long.groupby(keys + by + ["control"], sort=True, dropna=False):
+            row = dict(zip(keys + by + ["control"], point))
+            vals = g[figs].apply(pd.to_numeric, errors="coerce")
+            row["runs"] = int(vals["mean_delay_s"].notna().sum())
+            row.update({f: round(float(vals[f].mean()), 3) if vals[f].notna().any() else None for f in figs})
+            delay = row.get("mean_delay_s")
+            row["los"] = None if delay is None else level_of_service(delay, signalised[row["control"]])
+            rows.append(row)
+        table = pd.DataFrame(rows)
+        order = {c: i for i, c in enumerate(dict.fromkeys(df["control"]))}  # nrtraffic first, as run
+        table = table.sort_values(keys + by + ["control"], key=lambda c: c.map(order) if c.name == "control" else c,
+                                  kind="stable").reset_index(drop=True)
+        cols = keys + by + ["control", "runs"] + [f for f in (SIDE_APPROACH if by == ["approach"] else SIDE_MOVEMENT)
+                                                 if f in table]
+        out.append((heading, by, table[cols]))
+    return out
+
+
+def sweep_title(df: pd.DataFrame, out: Path) -> str:
+    """The title of a sweep's report: its scenarios (from its runs' summaries; the output folder's
+    name when no run finished), seeds, grid keys and controls."""
+    names = []
+    for d in df.loc[df["status"] == "ok", "run_dir"]:
+        try:
+            name = json.loads((Path(d) / "summary.json").read_text()).get("scenario")
+        except (OSError, ValueError):
+            continue
+        if name and name not in names:
+            names.append(name)
+    seeds = sorted(df["seed"].unique()) if len(df) else []
+    keys = grid_keys(df)
+    return (f"{', '.join(names) or Path(out).name}: sweep"
+            + (f", seeds {seeds[0]}-{seeds[-1]}" if len(seeds) > 1 else f", seed {seeds[0]}" if seeds else "")
+            + (f" over {', '.join(keys)}" if keys else "")
+            + f" ({', '.join(dict.fromkeys(df['control']))})")
 
 
 def mean_ci(r, k: str, nd: int = 1) -> str:
@@ -591,6 +745,27 @@ def driver_figure(df: pd.DataFrame, summ: pd.DataFrame, path: Path) -> None:
     ok = df[df["status"] == "ok"].copy()
     ok["pairs"] = sum(pd.to_numeric(ok.get(f"collisions_{k}"), errors="coerce").fillna(0)
                       for k in ("automated", "mixed", "human"))
+    if _one_point(summ):
+        for ax, k, label in zip(axes[:2], ("mean_delay_automated_s", "mean_delay_human_s"),
+                                ("mean delay, automated [s]", "mean delay, human drivers [s]")):
+            _bars(ax, summ, k, label)
+        pairs = [float(ok.loc[ok["control"] == c, "pairs"].mean()) for c in summ["control"]]
+        axes[2].bar(range(len(pairs)), pairs, width=0.6, color="0.5")
+        for i, v in enumerate(pairs):
+            if v == v:
+                axes[2].annotate(f"{v:.2f}", (i, v), xytext=(0, 3), textcoords="offset points", ha="center",
+                                 fontsize=7)
+        axes[2].set_ylim(0, max([1.0] + [1.2 * v for v in pairs if v == v]))
+        axes[2].set_xticks(range(len(pairs)), list(summ["control"]), rotation=15, fontsize=8)
+        axes[2].set_ylabel("colliding pairs per run")
+        axes[2].grid(alpha=0.3, axis="y")
+        point = _point_text(summ)
+        fig.suptitle("mixed traffic, by driver: mean over seeds ± 95 % confidence interval"
+                     + (f", {point}" if point else ""), fontsize=9)
+        fig.tight_layout()
+        fig.savefig(path, dpi=120)
+        plt.close(fig)
+        return
     for control, g in summ.groupby("control", sort=False):
         xs = x[g.index].to_numpy()
         order = xs.argsort()
@@ -638,33 +813,78 @@ def _x_axis(summ: pd.DataFrame):
     return "grid point", labels.map(order).astype(float), list(order)
 
 
-def figure(summ: pd.DataFrame, path: Path) -> None:
-    """Throughput, mean delay and fuel against the grid value, mean with its 95 % band per control
-    (a single grid point: error bars). An interval from fewer than ``MIN_SEEDS_FOR_CI`` seeds is
-    not drawn: it says little and its width would set the axis."""
+def _one_point(summ: pd.DataFrame) -> bool:
+    """The sweep has one grid point (its figures are bars per control, not lines)."""
+    keys = grid_keys(summ)
+    return not keys or len(summ[keys].drop_duplicates()) == 1
+
+
+def _bars(ax, summ: pd.DataFrame, k: str, label: str) -> bool:
+    """Figure ``k`` of a one-point sweep: a bar per control at its mean over seeds, with the 95 %
+    confidence interval where there are ``MIN_SEEDS_FOR_CI`` seeds or more; returns whether some
+    interval was left out for want of seeds."""
     from nrtraffic.plots import plt
 
+    controls = list(summ["control"])
+    m = summ[f"{k}_mean"].to_numpy(dtype=float)
+    c = summ[f"{k}_ci95"].fillna(0.0).to_numpy(dtype=float).copy()
+    few = summ["runs"].to_numpy() < MIN_SEEDS_FOR_CI
+    c[few] = 0.0
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    x = range(len(controls))
+    ax.bar(x, m, yerr=c, capsize=5, color=[colours[i % len(colours)] for i in x], alpha=0.85, width=0.6)
+    for i, (mi, ci) in enumerate(zip(m, c)):
+        if mi == mi:
+            ax.annotate(f"{mi:.1f}" + (f" ± {ci:.1f}" if ci > 0 else ""), (i, mi + ci), xytext=(0, 3),
+                        textcoords="offset points", ha="center", fontsize=7)
+    ax.set_xticks(list(x), controls, rotation=15, fontsize=8)
+    ax.set_ylabel(label)
+    ax.grid(alpha=0.3, axis="y")
+    ax.margins(y=0.15)
+    return bool(few.any())
+
+
+def _point_text(summ: pd.DataFrame) -> str:
+    keys = grid_keys(summ)
+    return ", ".join(f"{k} = {summ[k].iloc[0]}" for k in keys)
+
+
+def figure(summ: pd.DataFrame, path: Path) -> None:
+    """Throughput, mean delay and fuel against the grid value, mean with its 95 % band per control;
+    a single grid point: a bar per control with its 95 % interval. An interval from fewer than
+    ``MIN_SEEDS_FOR_CI`` seeds is not drawn: it says little and its width would set the axis."""
+    from nrtraffic.plots import plt
+
+    panels = (("throughput_veh_h", "throughput [veh/h]"), ("mean_delay_s", "mean delay [s]"),
+              ("mean_fuel_ml", "fuel [mL/veh]"))
+    fig, axes = plt.subplots(1, 3, figsize=(12.5, 3.8))
+    few_any = False
+    if _one_point(summ):
+        for ax, (k, label) in zip(axes, panels):
+            few_any |= _bars(ax, summ, k, label)
+        point = _point_text(summ)
+        fig.suptitle("mean over seeds ± 95 % confidence interval" + (f", {point}" if point else "")
+                     + (f" (no interval where fewer than {MIN_SEEDS_FOR_CI} seeds: unreliable)" if few_any else ""),
+                     fontsize=9)
+        fig.tight_layout()
+        fig.savefig(path, dpi=120)
+        plt.close(fig)
+        return
     xlabel, x, ticks = _x_axis(summ)
     if xlabel == "demand.rate_veh_h":
         xlabel = "demand [veh/h per approach]"
-    fig, axes = plt.subplots(1, 3, figsize=(12.5, 3.8))
-    few_any = False
     for control, g in summ.groupby("control", sort=False):
         xs = x[g.index]
         order = xs.argsort()
         few = g["runs"].to_numpy()[order] < MIN_SEEDS_FOR_CI
         few_any |= bool(few.any())
-        for ax, k, label in zip(axes, ("throughput_veh_h", "mean_delay_s", "mean_fuel_ml"),
-                                ("throughput [veh/h]", "mean delay [s]", "fuel [mL/veh]")):
+        for ax, (k, label) in zip(axes, panels):
             m = g[f"{k}_mean"].to_numpy()[order]
             c = g[f"{k}_ci95"].fillna(0.0).to_numpy()[order]
             c[few] = 0.0
             xo = xs.to_numpy()[order]
-            if len(xo) == 1:
-                ax.errorbar(xo, m, yerr=c, fmt="o", capsize=4, label=control)
-            else:
-                line, = ax.plot(xo, m, marker="o", label=control)
-                ax.fill_between(xo, m - c, m + c, color=line.get_color(), alpha=0.2, linewidth=0)
+            line, = ax.plot(xo, m, marker="o", label=control)
+            ax.fill_between(xo, m - c, m + c, color=line.get_color(), alpha=0.2, linewidth=0)
             ax.set(xlabel=xlabel, ylabel=label)
             ax.grid(alpha=0.3)
             if ticks:
@@ -702,21 +922,31 @@ def seed_figure(df: pd.DataFrame, path: Path) -> None:
     plt.close(fig)
 
 
-def main(args) -> int:
-    if args.scheduler is None and args.workers < 1:
-        raise SweepError(f"--workers {args.workers}: need at least one worker process")
-    grid = parse_grid(args.grid)
-    controls = [NRTRAFFIC] + parse_baselines(args.baseline)
-    seeds = parse_seeds(args.seeds)
+def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]]], controls: list[str], out: Path,
+          duration_s: float | None = None, overrides: tuple[str, ...] = (), workers: int = 2,
+          scheduler: str | None = None, force: bool = False, progress: bool = True,
+          allow_outside: bool = False) -> pd.DataFrame:
+    """A whole sweep (``nrtraffic sweep``, ``nrtraffic.sweep``): check its size and every grid
+    point's configuration, refuse a resume of another configuration (unless ``force``), then
+    :func:`run_sweep`. Returns ``sweep.csv`` as a DataFrame."""
+    if scheduler is None and workers < 1:
+        raise SweepError(f"--workers {workers}: need at least one worker process")
     n = len(seeds) * len(controls) * math.prod(len(v) for _, v in grid)
-    if n > MAX_RUNS and not args.force:
+    if n > MAX_RUNS and not force:
         raise SweepError(f"the sweep has {n} runs, more than {MAX_RUNS}: narrow --seeds or --grid, or --force to "
                          "run them all")
-    jobs = plan(args.scenario, seeds, grid, controls, args.out, args.duration,
-                tuple(args.overrides), allow_outside=args.allow_outside)
-    check_resume(jobs, force=args.force)
-    remove_stale(args.out)
-    df = run_sweep(jobs, args.out, workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress)
+    jobs = plan(scenario_path, seeds, grid, controls, out, duration_s, tuple(overrides), allow_outside=allow_outside)
+    check_resume(jobs, force=force)
+    remove_stale(out)
+    return run_sweep(jobs, out, workers=workers, scheduler=scheduler, progress=progress)
+
+
+def main(args) -> int:
+    grid = parse_grid(args.grid)
+    controls = [NRTRAFFIC] + parse_baselines(args.baseline)
+    df = study(args.scenario, parse_seeds(args.seeds), grid, controls, args.out, args.duration, tuple(args.overrides),
+               workers=args.workers, scheduler=args.scheduler, force=args.force, progress=not args.no_progress,
+               allow_outside=args.allow_outside)
     print((Path(args.out) / "sweep.md").read_text())
     n_failed = int((df["status"] != "ok").sum())
     if n_failed:

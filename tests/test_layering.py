@@ -31,7 +31,23 @@ def _modules():
 
 @pytest.mark.parametrize("path", _modules(), ids=lambda p: str(p.relative_to(ROOT)))
 def test_the_library_never_imports_the_runners(path):
+    if path == PKG / "__init__.py":  # the package's top level hands out the runners' Python API, when first used
+        return
     assert not {m for m in _imports(path) if m == "runners" or m.startswith("runners.")}
+
+
+def test_the_python_api_is_imported_only_when_used():
+    """``import nrtraffic`` loads neither the runners nor SUMO, pandas or Dask; ``nrtraffic.run``
+    is ``runners.api.run``."""
+    import subprocess
+    import sys
+
+    code = ("import sys, nrtraffic; heavy = [m for m in ('runners', 'runners.api', 'libsumo', 'traci', 'pandas', "
+            "'dask', 'matplotlib') if m in sys.modules]; print(heavy); import runners.api; "
+            "print(nrtraffic.run is runners.api.run and nrtraffic.Run is runners.api.Run)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True,
+                         env={**__import__("os").environ, "PYTHONPATH": str(ROOT)}).stdout.split("\n")
+    assert out[:2] == ["[]", "True"]
 
 
 @pytest.mark.parametrize("path", [p for p in _modules() if p.relative_to(PKG).parts[0].removesuffix(".py") in PURE],

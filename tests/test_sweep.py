@@ -154,3 +154,40 @@ def test_a_worker_that_dies_fails_only_the_run_it_was_running(tmp_path, monkeypa
     assert len(df) == 4
     failed = df[df["status"] != "ok"]
     assert failed["seed"].tolist() == [1] and "KilledWorker" in failed["error"].iloc[0]
+
+
+def test_a_sweep_into_a_file_says_how_far_it_is_and_the_first_run_says_it_compiles(tmp_path):
+    """stderr not a terminal (captured): one line per finished run, counting up to the runs that
+    sweep.csv then lists, each naming its run directory. With an empty kernel cache (its own
+    NUMBA_CACHE_DIR) the sweep says once, before any run finished, that it compiles the kernels
+    (the workers do not repeat it); a run after it, the cache filled, does not say it again."""
+    import os
+    import subprocess
+    import sys
+
+    from conftest import ROOT, SCENARIOS
+
+    from nrtraffic._kernel_cache import NOTICE
+
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
+    out = tmp_path / "out"
+    proc = subprocess.run([sys.executable, "-m", "runners.cli", "sweep", str(SCENARIOS / "cross4"), "--seeds", "1:2",
+                           "--workers", "1", "--out", str(out), *SHORT], capture_output=True, text=True, env=env,
+                          cwd=ROOT, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    lines = proc.stderr.splitlines()
+    assert lines.count(NOTICE) == 1
+    done = [ln for ln in lines if re.match(r"sweep: \d+/\d+ runs done", ln)]
+    assert lines.index(NOTICE) < lines.index(done[0])
+    df = pd.read_csv(out / "sweep.csv")
+    assert [re.match(r"sweep: (\d+)/(\d+)", ln).groups() for ln in done] == [
+        (str(i), str(len(df))) for i in range(1, len(df) + 1)]
+    named = {ln.rsplit("last: ", 1)[1].split()[0] for ln in done}
+    assert named == {Path(d).relative_to(out / "runs").as_posix() for d in df["run_dir"]}
+    assert all("(0 failed)" in ln for ln in done) and (df["status"] == "ok").all()
+
+    again = subprocess.run([sys.executable, "-m", "runners.cli", "run", str(SCENARIOS / "cross4"), "--seed", "3",
+                            "--out", str(tmp_path / "run"), *SHORT], capture_output=True, text=True, env=env,
+                           cwd=ROOT, timeout=600)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert NOTICE not in again.stderr

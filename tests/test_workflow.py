@@ -250,7 +250,7 @@ def test_gui_run_is_the_same_run(tmp_path):
     from conftest import ROOT
 
     base = [sys.executable, "-m", "runners.cli", "run", str(CROSS4), "--duration", "60", "--no-progress",
-            "--set", "outputs.warmup_s=0.0"]
+            "--set", "outputs.warmup_s=0.0", "--gui-delay", "0"]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     for name, extra in (("gui", ["--gui"]), ("headless", [])):
         cmd = (["xvfb-run", "-a"] if extra else []) + base + ["--out", str(tmp_path / name)] + extra
@@ -261,6 +261,78 @@ def test_gui_run_is_the_same_run(tmp_path):
     assert len(a) == len(b) > 5
     assert np.allclose(a["t_exit_s"], b["t_exit_s"], equal_nan=True)
     assert np.allclose(a["delay_s"], b["delay_s"], equal_nan=True)
+
+
+def test_gui_without_a_display_is_refused_at_once(tmp_path):
+    """``--gui`` with neither DISPLAY nor WAYLAND_DISPLAY: exit 2 within 10 s, nothing written, and
+    the message names DISPLAY, xvfb-run and the .sumocfg the run would write (sumo/run.sumocfg)."""
+    import os
+    import sys
+    import time
+
+    from conftest import ROOT
+
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    env["PYTHONPATH"] = str(ROOT)
+    out = tmp_path / "run"
+    t0 = time.monotonic()
+    proc = subprocess.run([sys.executable, "-m", "runners.cli", "run", str(CROSS4), "--gui", "--out", str(out)],
+                          capture_output=True, text=True, timeout=60, env=env, cwd=ROOT)
+    assert time.monotonic() - t0 < 10.0
+    assert proc.returncode == 2, proc.stderr
+    assert "DISPLAY" in proc.stderr and "xvfb-run" in proc.stderr
+    assert str(out / "sumo" / "run.sumocfg") in proc.stderr
+    assert not out.exists() and not list(tmp_path.iterdir())
+
+
+@pytest.mark.skipif(not __import__("sys").platform.startswith("linux"), reason="X11 display names")
+def test_gui_with_a_display_that_cannot_be_opened_fails_at_once_saying_why(tmp_path):
+    """DISPLAY names no X server: sumo-gui stops at once, and the run fails (exit 1) within 30 s
+    (not after TraCI's 60 restarts) with sumo-gui's own words and what to do."""
+    import os
+    import sys
+    import time
+
+    from conftest import ROOT
+
+    env = {k: v for k, v in os.environ.items() if k != "WAYLAND_DISPLAY"}
+    env.update(PYTHONPATH=str(ROOT), DISPLAY=":87")
+    t0 = time.monotonic()
+    proc = subprocess.run([sys.executable, "-m", "runners.cli", "run", str(CROSS4), "--gui", "--duration", "5",
+                           "--no-progress", "--out", str(tmp_path / "run")],
+                          capture_output=True, text=True, timeout=120, env=env, cwd=ROOT)
+    assert time.monotonic() - t0 < 30.0
+    assert proc.returncode == 1
+    assert "unable to open display :87" in proc.stderr and "xvfb-run" in proc.stderr
+    assert json.loads((tmp_path / "run" / "summary.json").read_text())["status"] == "failed"
+
+
+@pytest.mark.skipif(not __import__("shutil").which("xvfb-run"), reason="needs xvfb-run (a virtual display) for sumo-gui")
+def test_gui_opens_on_the_junction_and_paces_the_steps(tmp_path):
+    """Under xvfb-run: exit 0; sumo-gui shows junction C (its centre from the network file) in a
+    view a few hundred metres wide, not the 1 km network; with ``--gui-delay 250`` the 60 steps of
+    6 s (0.1 s each) take at least 15 s of wall time (about 6 s unpaced, sumo-gui's start included)."""
+    import os
+    import re
+    import sys
+
+    from conftest import ROOT
+
+    out = tmp_path / "gui"
+    proc = subprocess.run(["xvfb-run", "-a", sys.executable, "-m", "runners.cli", "run", str(CROSS4), "--duration", "6",
+                           "--gui", "--gui-delay", "250", "--no-progress", "--out", str(out)],
+                          capture_output=True, text=True, timeout=600, env={**os.environ, "PYTHONPATH": str(ROOT)},
+                          cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    node = ET.parse(SCENARIOS / "cross4" / "net.net.xml").getroot().find("junction[@id='C']")
+    cx, cy = float(node.get("x")), float(node.get("y"))
+    m = re.search(r"sumo-gui: showing C \(x (\S+) to (\S+) m, y (\S+) to (\S+) m\), 250 ms delay", proc.stderr)
+    assert m, proc.stderr[-2000:]
+    x0, x1, y0, y1 = map(float, m.groups())
+    assert x0 < cx < x1 and y0 < cy < y1
+    assert min(x1 - x0, y1 - y0) <= 200.0 and max(x1 - x0, y1 - y0) <= 600.0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "ok" and s["wall_time_s"] >= 60 * 0.250
 
 
 # ---------------------------------------------------------------- demand.sumo_routes

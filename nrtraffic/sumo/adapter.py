@@ -181,18 +181,26 @@ class SumoSession:
         the run; slower, and needs a display.
     begin_s : SUMO's clock at the start (``--begin``) [s]; :attr:`time` is measured from it, the route
         file's departures are absolute (:func:`write_routes` ``t0_s``).
+    gui_delay_ms : with ``gui``, the wall time each step takes at least [ms] (sumo-gui's delay:
+        its own ``--delay`` does not act on steps that TraCI asks for), so that the vehicles can be
+        followed by eye.
     """
 
-    # colours of the vehicles in sumo-gui by their state in the run (RGBA)
+    # colours of the vehicles in sumo-gui by their state in the run (RGBA); the legend is in the docs
+    # (Watching a run) and in ``nrtraffic run --help``
     COLOURS = {"approaching": (160, 160, 160, 255), "held": (220, 40, 40, 255), "pending": (240, 180, 0, 255),
                "controlled": (30, 110, 230, 255), "released": (40, 170, 60, 255), "human": (150, 90, 200, 255),
-               "human_reserved": (230, 110, 200, 255)}
+               "human_reserved": (230, 110, 200, 255), "sumo": (255, 255, 255, 255)}
+    GUI_CONNECT_TRIES = 60  # sumo-gui gets this many seconds to load the network and listen
 
     def __init__(self, net: Path, routes: Path, step_length_s: float, seed: int, lateral_resolution_m: float = 0.0,
                  tripinfo: Path | None = None, collisions: Path | None = None, fcd: Path | None = None,
-                 extra_args: tuple[str, ...] = (), gui: bool = False, begin_s: float = 0.0):
+                 extra_args: tuple[str, ...] = (), gui: bool = False, begin_s: float = 0.0,
+                 gui_delay_ms: float = 100.0):
         self.gui = gui
         self.begin = float(begin_s)
+        self.gui_delay_ms = float(gui_delay_ms)
+        self._step_due = 0.0  # (gui) monotonic clock before which the next step is not taken [s]
         self.args = [
             "sumo",
             "--net-file", str(net),
@@ -232,21 +240,66 @@ class SumoSession:
         if _ACTIVE is not None:
             raise SumoError("a SUMO simulation is already running in this process (libsumo allows one)")
         if self.gui:
-            import traci as t
-
-            from nrtraffic.sumo.netbuild import sumo_binary
-
-            args = [sumo_binary("sumo-gui"), *self.args[1:], "--start", "true", "--quit-on-end", "true"]
+            t = self._start_gui()
         else:
             t = _libsumo()
-            args = self.args
-        try:
-            t.start(args)
-        except Exception as exc:
-            raise SumoError(f"SUMO failed to start: {exc}") from None
+            try:
+                t.start(self.args)
+            except Exception as exc:
+                raise SumoError(f"SUMO failed to start: {exc}") from None
         self.traci = t
         _ACTIVE = self
         return self
+
+    def _start_gui(self):
+        """sumo-gui, started here and connected to by TraCI. When it stops before it listens (it
+        cannot open the display, say), the error says why, from its own output, at once (TraCI's
+        ``start`` would start it again, 60 times)."""
+        import contextlib
+        import io
+        import subprocess
+        import tempfile
+
+        import traci
+        from sumolib.miscutils import getFreeSocketPort
+
+        from nrtraffic.sumo.netbuild import sumo_binary
+
+        port = getFreeSocketPort()
+        args = [sumo_binary("sumo-gui"), *self.args[1:], "--start", "true", "--quit-on-end", "true",
+                "--window-size", "1200,900", "--remote-port", str(port)]
+        log = tempfile.TemporaryFile()
+        try:
+            proc = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT)
+        except OSError as exc:
+            log.close()
+            raise SumoError(f"sumo-gui failed to start: {exc}") from None
+        try:
+            with contextlib.redirect_stdout(io.StringIO()):  # (TraCI prints a line per second it waits)
+                traci.init(port, numRetries=self.GUI_CONNECT_TRIES, proc=proc)
+        except Exception as exc:
+            if proc.poll() is None:
+                proc.kill()
+            proc.wait()
+            log.seek(0)
+            said = log.read().decode(errors="replace").strip()[-1500:]
+            raise SumoError(f"sumo-gui stopped before the run could start (exit status {proc.returncode}; {exc})"
+                            + (f": {said}" if said else "") + ". It needs a display it can open: check DISPLAY, "
+                            "or run under a virtual one with xvfb-run -a") from None
+        finally:
+            log.close()
+        return traci
+
+    def show(self, xmin: float, ymin: float, xmax: float, ymax: float) -> tuple[float, float, float, float] | None:
+        """In sumo-gui, show the rectangle ``[xmin, xmax] x [ymin, ymax]`` [m, network coordinates];
+        returns what its view shows then (the rectangle widened to the window's shape), or None
+        without the GUI."""
+        if not self.gui:
+            return None
+        view = self.traci.gui.DEFAULT_VIEW
+        self.traci.gui.setBoundary(view, xmin, ymin, xmax, ymax)
+        (x0, y0), (x1, y1) = self.traci.gui.getBoundary(view)
+        return x0, y0, x1, y1
 
     def close(self) -> None:
         global _ACTIVE
@@ -275,7 +328,15 @@ class SumoSession:
 
     # ---- stepping
     def step(self) -> float:
-        """Advance SUMO by one step; returns the new simulation time [s]."""
+        """Advance SUMO by one step; returns the new simulation time [s]. In sumo-gui, not sooner
+        than ``gui_delay_ms`` after the last step."""
+        if self.gui and self.gui_delay_ms > 0:
+            import time
+
+            now = time.monotonic()
+            if now < self._step_due:
+                time.sleep(self._step_due - now)
+            self._step_due = max(now, self._step_due) + self.gui_delay_ms / 1000.0
         try:
             self.traci.simulationStep()
         except Exception as exc:
@@ -295,6 +356,8 @@ class SumoSession:
         sub = self.traci.vehicle.subscribe
         for vid in ids:
             sub(vid, self._vars)
+            if self.gui:  # driven by SUMO until the run says otherwise (:meth:`colour`)
+                self.traci.vehicle.setColor(vid, self.COLOURS["sumo"])
         return ids
 
     def forget(self, vid: str) -> None:

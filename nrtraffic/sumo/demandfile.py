@@ -45,6 +45,14 @@ def _num(el, key: str, where: str, default=None) -> float:
 
 DEPART_LANES = ("random", "free", "allowed", "best", "best_prob", "first")  # SUMO's departLane words
 _ROUTED: dict[tuple, Path] = {}  # (file, its version, network) -> the file routed by duarouter, once per process
+_TMP: list = []  # the process's folder for routed and merged files, removed when the process ends
+
+
+def _scratch(name: str) -> Path:
+    """A new path for ``name`` in the process's temporary folder (removed at exit)."""
+    if not _TMP:
+        _TMP.append(tempfile.TemporaryDirectory(prefix="nrtraffic-routes-"))
+    return Path(tempfile.mkdtemp(dir=_TMP[0].name)) / name
 
 
 def _unrouted(root) -> bool:
@@ -69,7 +77,7 @@ def merged(paths: list[Path]) -> Path:
             root.extend(list(ET.parse(p).getroot()))
         except (OSError, ET.ParseError) as exc:
             raise DemandFileError(f"demand.sumo_routes {p}: cannot be read as XML: {exc}") from None
-    out = Path(tempfile.mkdtemp(prefix="nrtraffic-routes-")) / "merged.rou.xml"
+    out = _scratch("merged.rou.xml")
     ET.ElementTree(root).write(out, encoding="utf-8", xml_declaration=True)
     _ROUTED[key] = out
     return out
@@ -93,7 +101,7 @@ def routed(path: Path, net_path: Path) -> Path:
     key = (str(path.resolve()), st.st_mtime_ns, st.st_size, str(net_path.resolve()), net_path.stat().st_mtime_ns)
     if key in _ROUTED and _ROUTED[key].is_file():
         return _ROUTED[key]
-    out = Path(tempfile.mkdtemp(prefix="nrtraffic-routes-")) / f"{path.stem}.routed.rou.xml"
+    out = _scratch(f"{path.stem}.routed.rou.xml")
     cmd = [sumo_binary("duarouter"), "--net-file", str(net_path), "--route-files", str(path), "--output-file", str(out),
            "--no-step-log", "true", "--ignore-errors", "false", "--write-license", "false"]
     try:

@@ -1,0 +1,310 @@
+"""The Python API: ``nrtraffic.run``, ``nrtraffic.baseline`` and ``nrtraffic.sweep``.
+
+The same operations as ``nrtraffic run``, ``nrtraffic baseline`` and ``nrtraffic sweep``, with the
+same checks (a bad key, value or demand raises :class:`~nrtraffic.scenario.ScenarioError` before
+SUMO starts; a folder that holds something else raises :class:`OutputError`), writing the same run
+directories, and returning objects that read them: :class:`Run` (``summary``, ``vehicles``,
+``movements``, ``approaches``, ``trajectories()``) and :class:`Sweep` (``table``, ``summary``).
+A run that stops early raises :class:`~nrtraffic.engine.RunFailed`; what it had finished is in its
+run directory (``exc.result.run_dir``).
+
+Without ``out``, a run or sweep is written into a new folder under the system's temporary
+directory (``tempfile.mkdtemp``), which is kept: ``Run.run_dir`` / ``Sweep.path`` say where.
+
+Nothing heavy is imported here at module level: ``import nrtraffic`` stays light, and the
+command line imports the helpers it shares with the API from here.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import threading
+from collections.abc import Iterable, Mapping
+from functools import cached_property
+from pathlib import Path
+
+
+class OutputError(ValueError):
+    """The output folder cannot be used."""
+
+
+def writable_dir(path: Path) -> None:
+    """Refuse (exit 2) an output folder that is a file or cannot be created or written, before
+    anything runs."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise OutputError(f"--out {path}: exists and is not a folder")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        probe = path / f".write-test-{threading.get_ident()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise OutputError(f"--out {path}: cannot write there: {exc.strerror or exc}") from None
+
+
+def slug(name: str) -> str:
+    """A scenario name as a folder name under runs/: letters, digits, ``.``, ``_`` and ``-`` only
+    (a name such as ``../../x`` cannot lead out of it)."""
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._-") or "run"
+
+
+def claim(out: Path, sc, seed, duration, control: str, force: bool) -> None:
+    """Check the scenario against its network and build its demand (exit 2 on an error, before
+    anything is written), then make ``out`` ready for the run."""
+    from runners.single import check, check_demand, claim_run_dir
+
+    check(sc)
+    check_demand(sc, seed, duration)
+    writable_dir(out)
+    try:
+        claim_run_dir(out, sc, seed, duration, control, force)
+    except ValueError as exc:
+        raise OutputError(str(exc)) from None
+    except OSError as exc:
+        raise OutputError(f"--out {out}: cannot clear the earlier run: {exc}") from None
+
+
+def write_report(out: Path) -> None:
+    """The run's figures and ``report.html`` (single runs and baselines; a sweep's runs get none)."""
+    from nrtraffic.report import run_report
+    from runners.single import update_manifest
+
+    try:
+        run_report(out)
+    finally:
+        update_manifest(out)
+
+
+# ------------------------------------------------------------------ results
+class Run:
+    """A run directory, read when asked (each table once).
+
+    Attributes
+    ----------
+    run_dir : the run directory (``Path``).
+    summary : ``summary.json`` as a dict.
+    vehicles, movements, approaches : ``vehicles.csv`` (a row per vehicle and junction crossed),
+        ``movements.csv`` and ``approaches.csv`` as DataFrames (empty where the run wrote none).
+    report : ``report.html`` (``Path``; absent when the run was made with ``report=False``).
+
+    ``Run(path)`` opens any finished run directory, also one written by the command line.
+    """
+
+    def __init__(self, run_dir: str | Path):
+        self.run_dir = Path(run_dir)
+        if not (self.run_dir / "summary.json").is_file():
+            raise FileNotFoundError(f"{self.run_dir} holds no summary.json: not a run directory")
+
+    @cached_property
+    def summary(self) -> dict:
+        return json.loads((self.run_dir / "summary.json").read_text())
+
+    def _csv(self, name: str):
+        import pandas as pd
+
+        path = self.run_dir / name
+        if not path.is_file() or path.stat().st_size == 0:
+            return pd.DataFrame()
+        return pd.read_csv(path)
+
+    @cached_property
+    def vehicles(self):
+        return self._csv("vehicles.csv")
+
+    @cached_property
+    def movements(self):
+        return self._csv("movements.csv")
+
+    @cached_property
+    def approaches(self):
+        return self._csv("approaches.csv")
+
+    @property
+    def report(self) -> Path:
+        return self.run_dir / "report.html"
+
+    def trajectories(self):
+        """``trajectories.parquet`` as a DataFrame (read now, not kept: it can be large): per
+        controlled vehicle and log instant, ``t`` [s], pose, inputs, reference and errors."""
+        from nrtraffic.results import read_trajectories
+
+        return read_trajectories(self.run_dir)
+
+    def _repr_html_(self) -> str:  # (a notebook shows a run as its headline figures)
+        import html
+
+        keys = ("scenario", "control", "seed", "status", "sim_time_s", "vehicles_spawned", "vehicles_completed",
+                "throughput_veh_h", "mean_delay_s", "los", "p95_delay_s", "collisions", "warnings")
+        rows = "".join(f"<tr><th style='text-align:left'>{k}</th><td>{html.escape(str(self.summary[k]))}</td></tr>"
+                       for k in keys if k in self.summary)
+        return f"<p>run directory <code>{html.escape(str(self.run_dir))}</code></p><table>{rows}</table>"
+
+    def __repr__(self) -> str:
+        s = self.summary
+        return (f"Run({s.get('scenario')!r}, seed {s.get('seed')}, {s.get('control', 'nrtraffic')}, "
+                f"status {s.get('status')!r}, run_dir={str(self.run_dir)!r})")
+
+
+class Sweep:
+    """A sweep's output folder: ``table`` (``sweep.csv``, a row per run: grid values, seed,
+    control, status, error, the run's figures, ``run_dir``), ``summary`` (``sweep_summary.csv``:
+    mean, sd and 95 % confidence half-width per grid point and control), ``path`` and
+    ``report`` (``report.html``); :meth:`run` opens one of its runs."""
+
+    def __init__(self, path: str | Path):
+        import pandas as pd
+
+        self.path = Path(path)
+        self.table = pd.read_csv(self.path / "sweep.csv")
+        self.summary = pd.read_csv(self.path / "sweep_summary.csv")
+
+    @property
+    def failed(self):
+        """The rows of the runs that failed (``error`` says why)."""
+        return self.table[self.table["status"] != "ok"]
+
+    @property
+    def report(self) -> Path:
+        return self.path / "report.html"
+
+    def run(self, row: int) -> Run:
+        """The run of row ``row`` of :attr:`table`."""
+        return Run(self.table["run_dir"].iloc[row])
+
+    def __repr__(self) -> str:
+        return f"Sweep({len(self.table)} runs, {len(self.failed)} failed, path={str(self.path)!r})"
+
+
+# ------------------------------------------------------------------ operations
+def _toml(v) -> str:
+    """A Python value as TOML text, for a ``section.key=value`` setting."""
+    import math
+
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return ("nan" if math.isnan(v) else ("inf" if v > 0 else "-inf")) if not math.isfinite(v) else repr(v)
+    if isinstance(v, str):
+        return json.dumps(v, ensure_ascii=False)
+    if isinstance(v, Mapping):
+        key = lambda k: k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else json.dumps(k)  # noqa: E731
+        return "{" + ", ".join(f"{key(str(k))} = {_toml(x)}" for k, x in v.items()) + "}"
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml(x) for x in v) + "]"
+    raise TypeError(f"a setting's value must be a number, string, bool, list or table, not {type(v).__name__}")
+
+
+def settings(overrides) -> list[str]:
+    """``overrides`` as ``section.key=value`` texts: a mapping ``{"demand.rate_veh_h": 600}``
+    (values as Python numbers, strings, bools, lists, dicts) or texts as ``--set`` takes them."""
+    if overrides is None:
+        return []
+    if isinstance(overrides, str):
+        return [overrides]
+    if isinstance(overrides, Mapping):
+        return [f"{k}={_toml(v)}" for k, v in overrides.items()]
+    return [str(o) for o in overrides]
+
+
+def _out(out, prefix: str) -> Path:
+    if out is not None:
+        return Path(out)
+    import tempfile
+
+    return Path(tempfile.mkdtemp(prefix=f"nrtraffic-{prefix}-"))
+
+
+def run(scenario: str | Path, *, seed: int | None = None, duration_s: float | None = None,
+        out: str | Path | None = None, overrides=None, force: bool = False, progress: bool = False,
+        report: bool = True, allow_outside: bool = False) -> Run:
+    """Run one scenario under nrtraffic's control (``nrtraffic run``).
+
+    Parameters
+    ----------
+    scenario : a scenario.toml, or the folder holding it.
+    seed : random seed of the arrivals and of SUMO (default: the scenario's).
+    duration_s : simulated time [s] (default: the scenario's; 0: until every vehicle has left).
+    out : run directory (default: a new folder under the system's temporary directory, kept).
+    overrides : settings over the scenario's, as ``{"section.key": value}`` or ``["section.key=value"]``.
+    force : replace an earlier run of another configuration in ``out`` (its files only).
+    progress : a progress bar (on a terminal) or a line per 10 % of the run (elsewhere) on stderr.
+    report : also draw the figures and write ``report.html``, as the command does.
+    allow_outside : let the scenario name files outside its own folder.
+
+    Returns
+    -------
+    Run : the run directory, with ``summary``, ``vehicles``, ``movements``, ``approaches`` and
+        ``trajectories()``.
+    """
+    from nrtraffic import scenario as scenario_mod
+    from runners.single import run_scenario
+
+    sc = scenario_mod.load(scenario, settings(overrides), allow_outside=allow_outside)
+    seed = sc.general.seed if seed is None else int(seed)
+    out = _out(out, f"{slug(sc.general.name)}-seed{seed}")
+    claim(out, sc, seed, duration_s, "nrtraffic", force)
+    run_scenario(sc, out, seed=seed, duration_s=duration_s, progress=progress)
+    if report:
+        write_report(out)
+    return Run(out)
+
+
+def baseline(scenario: str | Path, junction: str, *, seed: int | None = None, duration_s: float | None = None,
+             out: str | Path | None = None, overrides=None, force: bool = False, progress: bool = False,
+             report: bool = True, allow_outside: bool = False) -> Run:
+    """The same demand and seed under SUMO's own junction control (``nrtraffic baseline``):
+    ``junction`` is one of ``as_is``, ``actuated``, ``traffic_light``, ``traffic_light_coordinated``,
+    ``priority``, ``allway_stop``, ``right_before_left``. The other parameters and the result are
+    those of :func:`run`."""
+    from nrtraffic import scenario as scenario_mod
+    from runners.baseline import run_baseline
+
+    sc = scenario_mod.load(scenario, settings(overrides), allow_outside=allow_outside)
+    seed = sc.general.seed if seed is None else int(seed)
+    out = _out(out, f"{slug(sc.general.name)}-seed{seed}-{junction}")
+    claim(out, sc, seed, duration_s, f"sumo_{junction}", force)
+    run_baseline(sc, junction, out, seed=seed, duration_s=duration_s, progress=progress)
+    if report:
+        write_report(out)
+    return Run(out)
+
+
+def sweep(scenario: str | Path, seeds: Iterable[int] | str, *, grid: Mapping[str, Iterable] | None = None,
+          baselines: Iterable[str] | str = (), duration_s: float | None = None, out: str | Path | None = None,
+          overrides=None, workers: int = 2, scheduler: str | None = None, force: bool = False,
+          progress: bool = False, allow_outside: bool = False) -> Sweep:
+    """Every (grid point, seed) of a scenario, and SUMO's junction controls on the same seeds, on
+    Dask (``nrtraffic sweep``); resumable: finished runs in ``out`` are not run again.
+
+    Parameters
+    ----------
+    seeds : the seeds, e.g. ``range(1, 21)``, or ``"1:20"`` as ``--seeds`` takes them.
+    grid : ``{"section.key": [values]}``; the grid is the product of the lists.
+    baselines : SUMO's junction controls to run as well (names as :func:`baseline` takes them).
+    workers, scheduler : a local cluster of ``workers`` processes, or an existing Dask scheduler's
+        address. In a script (not a notebook), call it under ``if __name__ == "__main__":`` (the
+        worker processes import the script).
+    progress : a bar (on a terminal) or a line per finished run (elsewhere) on stderr.
+    The others are those of :func:`run`; ``force`` also allows more than 20000 runs.
+
+    Returns
+    -------
+    Sweep : ``table`` (sweep.csv), ``summary`` (sweep_summary.csv), ``path``; a run that failed
+        is a row with ``status`` "failed" and its ``error`` (:attr:`Sweep.failed`), not an exception.
+    """
+    from runners import sweep as sweep_mod
+
+    seeds = sweep_mod.parse_seeds(seeds if isinstance(seeds, str) else ",".join(str(int(s)) for s in seeds))
+    items = [f"{k}={','.join(v if isinstance(v, str) else _toml(v) for v in values)}"
+             for k, values in (grid or {}).items()]
+    controls = [sweep_mod.NRTRAFFIC] + sweep_mod.parse_baselines(
+        baselines if isinstance(baselines, str) else ",".join(baselines))
+    out = _out(out, "sweep")
+    sweep_mod.study(Path(scenario), seeds, sweep_mod.parse_grid(items), controls, out, duration_s=duration_s,
+                    overrides=tuple(settings(overrides)), workers=workers, scheduler=scheduler, force=force,
+                    progress=progress, allow_outside=allow_outside)
+    return Sweep(out)

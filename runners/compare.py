@@ -1,0 +1,28 @@
+"""``nrtraffic compare``: finished runs of one scenario side by side (:mod:`nrtraffic.compare`)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+
+def main(args) -> int:
+    """Compare ``args.run_dirs``; write the report into ``args.out`` (default
+    ``runs/<scenario>-compare``) and print it. Exit status 2, with the reason, when the run
+    directories cannot be compared or the output folder cannot be used."""
+    from nrtraffic.compare import CompareError, compare, console, write
+    from runners.cli import OutputError, slug, writable_dir
+
+    try:
+        c = compare(args.run_dirs)
+        out = args.out or Path("runs") / f"{slug(c.scenario)}-compare"
+        if (Path(out) / "summary.json").is_file():
+            raise OutputError(f"--out {out}: a run directory; write the comparison into another folder")
+        writable_dir(out)
+        paths = write(c, out)
+    except (CompareError, OutputError) as exc:
+        print(f"nrtraffic: {exc}", file=sys.stderr)
+        return 2
+    print(console(c), end="")
+    print(f"report: {paths[0]}; tables: " + ", ".join(str(p) for p in paths[1:]))
+    return 0

@@ -1,0 +1,104 @@
+"""The Python API (``nrtraffic.run``, ``nrtraffic.baseline``, ``nrtraffic.sweep``): the DataFrames
+it returns against SUMO's own outputs of the same run."""
+
+import shutil
+import tempfile
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+import nrtraffic
+from nrtraffic import scenario
+from nrtraffic.scenario import ScenarioError
+
+from conftest import SCENARIOS
+
+CROSS4 = SCENARIOS / "cross4"
+
+
+def _sumo_vehicles(run_dir: Path) -> set[str]:
+    """The vehicles SUMO had in the network after any step (its fcd.xml)."""
+    return {v.get("id") for ts in ET.parse(run_dir / "fcd.xml").getroot().iter("timestep") for v in ts.iter("vehicle")}
+
+
+def test_run_returns_the_run_as_dataframes():
+    """``nrtraffic.run("sumo_scenarios/cross4", duration_s=120, seed=1)`` without ``out``: a run
+    directory under the temporary folder; ``vehicles`` a row per vehicle SUMO inserted (SUMO's
+    fcd.xml), the ones SUMO saw arrive (tripinfo.xml) among them; ``movements`` one row per
+    movement of the network's junction C; ``trajectories()`` the controlled vehicles."""
+    res = nrtraffic.run(str(CROSS4), duration_s=120, seed=1, overrides={"outputs.sumo_fcd": True})
+    try:
+        assert Path(tempfile.gettempdir()) in res.run_dir.parents
+        assert res.summary["status"] == "ok" and res.summary["seed"] == 1 and res.summary["sim_time_s"] == 120
+        v = res.vehicles
+        assert isinstance(v, pd.DataFrame) and len(v) > 10
+        # every vehicle SUMO inserted is in the run, the ones of its last step too
+        seen = _sumo_vehicles(res.run_dir)
+        assert set(v["vehicle_id"]) == seen and len(v) == len(seen) == res.summary["vehicles_spawned"]
+        arrived = {t.get("id") for t in ET.parse(res.run_dir / "tripinfo.xml").getroot().iter("tripinfo")}
+        assert arrived and arrived <= seen
+        net = ET.parse(CROSS4 / "net.net.xml").getroot()
+        turns = {(c.get("from"), c.get("to")) for c in net.iter("connection")
+                 if c.get("from") in {"N_in", "S_in", "E_in", "W_in"}}
+        assert len(res.movements) == len(turns)
+        assert set(res.approaches["approach"]) == {"N_in", "S_in", "E_in", "W_in"}
+        traj = res.trajectories()
+        assert set(traj["vehicle_id"]) == set(v.loc[v["t_enter_s"].notna(), "vehicle_id"])
+        assert res.report.is_file()
+        again = nrtraffic.Run(res.run_dir)  # a run directory opened later
+        assert again.summary == res.summary and again.vehicles.equals(v)
+    finally:
+        shutil.rmtree(res.run_dir, ignore_errors=True)
+
+
+def test_baseline_returns_the_same_kind_of_run(tmp_path):
+    res = nrtraffic.baseline(CROSS4, "priority", seed=2, duration_s=60, out=tmp_path / "b", report=False,
+                             overrides=["outputs.sumo_fcd=true", "outputs.warmup_s=0"])
+    assert res.run_dir == tmp_path / "b" and res.summary["control"] == "sumo_priority"
+    assert set(res.vehicles["vehicle_id"]) == _sumo_vehicles(res.run_dir)
+    assert not res.report.exists()
+    page = res._repr_html_()
+    assert "<td>sumo_priority</td>" in page and f"<td>{res.summary['vehicles_spawned']}</td>" in page
+
+
+def test_settings_as_python_values_are_the_scenario_keys():
+    """A mapping of Python values is read as ``--set`` texts would be."""
+    from runners.api import settings
+
+    ov = settings({"demand.rate_veh_h": 600, "outputs.sumo_fcd": True, "scenario.name": 'a "b" c',
+                   "controller.horizon_s": 0.25})
+    sc = scenario.load(CROSS4, ov)
+    assert (sc.demand.rate_veh_h, sc.outputs.sumo_fcd, sc.general.name, sc.controller.horizon_s) == (
+        600.0, True, 'a "b" c', 0.25)
+
+
+def test_bad_input_raises_before_anything_is_written(tmp_path):
+    with pytest.raises(ScenarioError, match="rate_veh_h"):
+        nrtraffic.run(CROSS4, out=tmp_path / "r", overrides={"demand.rate_veh_h": -5})
+    assert not (tmp_path / "r").exists()
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("mine")
+    from runners.api import OutputError
+
+    with pytest.raises(OutputError, match="not empty"):
+        nrtraffic.run(CROSS4, out=tmp_path / "mine", duration_s=30)
+    assert [p.name for p in (tmp_path / "mine").iterdir()] == ["notes.txt"]
+
+
+def test_sweep_returns_its_table(tmp_path):
+    """Two seeds and two demand levels on one worker: a row per run, each ``ok``, its figures
+    those of the run's own summary.json."""
+    import json
+
+    sw = nrtraffic.sweep(CROSS4, range(1, 3), grid={"demand.rate_veh_h": [300, 600]}, workers=1,
+                         out=tmp_path / "s", overrides={"scenario.duration_s": 25, "demand.end_s": 12})
+    t = sw.table
+    assert len(t) == 4 and (t["status"] == "ok").all() and sw.failed.empty
+    assert sorted(zip(t["demand.rate_veh_h"], t["seed"])) == [(300, 1), (300, 2), (600, 1), (600, 2)]
+    for i in range(len(t)):
+        s = json.loads((Path(t["run_dir"].iloc[i]) / "summary.json").read_text())
+        assert s["seed"] == t["seed"].iloc[i] and s["vehicles_spawned"] == t["vehicles_spawned"].iloc[i]
+        assert sw.run(i).summary == s
+    assert len(sw.summary) == 2 and sw.report.is_file()
