@@ -23,7 +23,8 @@ FIELDS = {
     "control": ("control", "text"), "scenario": ("scenario", "text"), "seed": ("seed", "int"),
     "status": ("status", "text"), "measure_from_s": ("measured from [s]", 1), "measure_to_s": ("measured to [s]", 1),
     "vehicles_completed": ("vehicles completed", "int"), "throughput_veh_h": ("throughput [veh/h]", 1),
-    "demand_veh_h": ("demand [veh/h]", 1), "served_share": ("served [% of demand]", "pct"),
+    "demand_veh_h": ("demand [veh/h]", 1), "served_share": ("served [% of vehicles demanded]", "pct"),
+    "vehicles_demanded": ("vehicles demanded", "int"), "vehicles_served": ("vehicles served", "int"),
     "vehicles_waiting_to_enter": ("vehicles waiting to enter", "int"), "mean_delay_s": ("mean delay [s]", 1),
     "los": ("LOS", "text"), "p95_delay_s": ("95th-percentile delay [s]", 1),
     "mean_sumo_time_loss_s": ("mean SUMO timeLoss [s]", 1), "mean_fuel_ml": ("mean fuel [mL/veh]", 1),
@@ -36,7 +37,7 @@ FIELDS = {
     # movements.csv, approaches.csv
     "approach": ("approach", "text"), "movement": ("movement", "text"), "vehicles": ("vehicles", "int"),
     "los_thresholds": ("LOS thresholds", "text"), "stops_per_vehicle": ("stops per vehicle", 2),
-    "fuel_ml_per_vehicle": ("fuel [mL/veh]", 1), "served_veh_h": ("served [veh/h]", 1),
+    "fuel_ml_per_vehicle": ("fuel [mL/veh]", 1),
     "mean_queue_veh": ("mean queue [veh]", 2), "max_queue_veh": ("longest queue [veh]", 1),
     "mean_queue_m": ("mean queue [m]", 1), "max_queue_m": ("longest queue [m]", 1),
     "p95_queue_veh": ("95th-percentile queue [veh]", 1),
@@ -170,11 +171,15 @@ def corridor_tables(summary: dict) -> list[tuple[str, pd.DataFrame]]:
     out = []
     junctions = summary.get("junctions") or {}
     if len(junctions) > 1:
-        rows = [{"junction": j, **{k: f.get(k) for k in ("vehicles", "throughput_veh_h", "mean_delay_s", "p95_delay_s",
-                                                           "los", "control_zone_m", "merging_zone_m")}}
+        rows = [{"junction": j, **{k: f.get(k) for k in ("vehicles", "throughput_veh_h", "served_share",
+                                                           "mean_delay_s", "p95_delay_s", "los", "control_zone_m",
+                                                           "merging_zone_m")}}
                 for j, f in junctions.items()]
-        out.append(("Per junction: the crossings that entered its control zone in the measurement window and "
-                    "left its merging zone; LOS: HCM level of service of the mean delay.", pd.DataFrame(rows)))
+        out.append(("Per junction: throughput, the crossings that left its merging zone in the measurement "
+                    "window, per hour (they add up to the run's); served, the share of the vehicles demanded of "
+                    "it in the window that left; vehicles and delay, the crossings that entered its control zone "
+                    "in the window and left its merging zone; LOS: HCM level of service of the mean delay.",
+                    pd.DataFrame(rows)))
     corridor = summary.get("corridor") or {}
     if corridor:
         rows = [{"direction": d, **{k: f.get(k) for k in ("vehicles", "travel_time_s", "stops_per_vehicle", "delay_s")}}
