@@ -83,7 +83,7 @@ def test_bad_input_raises_before_anything_is_written(tmp_path):
     from runners.api import OutputError
 
     with pytest.raises(OutputError, match="not empty"):
-        nrtraffic.run(CROSS4, out=tmp_path / "mine", duration_s=30)
+        nrtraffic.run(CROSS4, out=tmp_path / "mine", duration_s=30, overrides={"outputs.warmup_s": 0})
     assert [p.name for p in (tmp_path / "mine").iterdir()] == ["notes.txt"]
 
 
@@ -93,7 +93,8 @@ def test_sweep_returns_its_table(tmp_path):
     import json
 
     sw = nrtraffic.sweep(CROSS4, range(1, 3), grid={"demand.rate_veh_h": [300, 600]}, workers=1,
-                         out=tmp_path / "s", overrides={"scenario.duration_s": 25, "demand.end_s": 12})
+                         out=tmp_path / "s", overrides={"scenario.duration_s": 25, "demand.end_s": 12,
+                                                        "outputs.warmup_s": 0})
     t = sw.table
     assert len(t) == 4 and (t["status"] == "ok").all() and sw.failed.empty
     assert sorted(zip(t["demand.rate_veh_h"], t["seed"])) == [(300, 1), (300, 2), (600, 1), (600, 2)]

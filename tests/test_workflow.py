@@ -299,7 +299,7 @@ def test_gui_with_a_display_that_cannot_be_opened_fails_at_once_saying_why(tmp_p
     env.update(PYTHONPATH=str(ROOT), DISPLAY=":87")
     t0 = time.monotonic()
     proc = subprocess.run([sys.executable, "-m", "runners.cli", "run", str(CROSS4), "--gui", "--duration", "5",
-                           "--no-progress", "--out", str(tmp_path / "run")],
+                           "--set", "outputs.warmup_s=0", "--no-progress", "--out", str(tmp_path / "run")],
                           capture_output=True, text=True, timeout=120, env=env, cwd=ROOT)
     assert time.monotonic() - t0 < 30.0
     assert proc.returncode == 1
@@ -320,7 +320,7 @@ def test_gui_opens_on_the_junction_and_paces_the_steps(tmp_path):
 
     out = tmp_path / "gui"
     proc = subprocess.run(["xvfb-run", "-a", sys.executable, "-m", "runners.cli", "run", str(CROSS4), "--duration", "6",
-                           "--gui", "--gui-delay", "250", "--no-progress", "--out", str(out)],
+                           "--set", "outputs.warmup_s=0", "--gui", "--gui-delay", "250", "--no-progress", "--out", str(out)],
                           capture_output=True, text=True, timeout=600, env={**os.environ, "PYTHONPATH": str(ROOT)},
                           cwd=ROOT)
     assert proc.returncode == 0, proc.stderr[-2000:]
