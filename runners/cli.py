@@ -131,6 +131,9 @@ def _add_cluster_args(p) -> None:
     where.add_argument("--workers", type=int, default=2, help="worker processes of the local cluster (default 2)")
     where.add_argument("--scheduler", default=None, metavar="ADDRESS",
                        help="use an existing Dask scheduler, e.g. tcp://10.0.0.5:8786 (workers must see DIR)")
+    from runners.clusters import add_arguments
+
+    add_arguments(p, where)  # --cluster slurm|pbs and the batch jobs' cores, memory, walltime, queue, account
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
     p.add_argument("--force", action="store_true",
                    help="run again, and replace, run directories in --out that were made with another "
