@@ -131,13 +131,15 @@ def from_args(args) -> BatchSpec | None:
 
 
 def make_cluster(spec: BatchSpec, n_runs: int, log_dir: Path):
-    """Submit the batch jobs (no more than the runs need) and return the dask-jobqueue cluster;
-    the job script is written to ``log_dir/job.sh`` and the jobs' output goes to ``log_dir``."""
+    """Submit the batch jobs (no more than the runs need, and a new one whenever one ends before
+    the sweep does) and return the dask-jobqueue cluster; the job script is written to ``log_dir/job.sh`` and the jobs' output goes to ``log_dir``."""
     cluster = job_cluster(spec, log_dir)
     log_dir = Path(log_dir).resolve()
     (log_dir / "job.sh").write_text(cluster.job_script())
     n_jobs = max(1, min(spec.jobs, math.ceil(n_runs / spec.cores)))
-    cluster.scale(jobs=n_jobs)
+    # adaptive with a fixed size: a job that ends (its walltime, scancel, a node lost) is replaced by a new one,
+    # and its run is retried on another worker
+    cluster.adapt(minimum_jobs=n_jobs, maximum_jobs=n_jobs)
     watch = "squeue --name nrtraffic-sweep" if spec.kind == "slurm" else "qstat"
     print(f"nrtraffic: submitted {n_jobs} {spec.kind} job(s) of {spec.cores} core(s), {spec.memory}, walltime "
           f"{spec.walltime} (job script: {log_dir / 'job.sh'}); the runs start when the jobs do ({watch})",
