@@ -124,7 +124,7 @@ def from_args(args) -> BatchSpec | None:
     if shutil.which(submit) is None:
         raise _error(f"--cluster {kind}: {submit} is not on PATH: {INSTALL_HINT[kind]}")
     try:
-        import dask_jobqueue  # noqa: F401
+        _jobqueue()
     except ImportError:
         raise _error(f"--cluster {kind} needs dask-jobqueue: pip install dask-jobqueue") from None
     return BatchSpec(kind, jobs, cores, memory, walltime, args.queue, args.account, directives, args.interface)
@@ -150,7 +150,7 @@ def make_cluster(spec: BatchSpec, n_runs: int, log_dir: Path):
 def job_cluster(spec: BatchSpec, log_dir: Path):
     """The dask-jobqueue cluster of ``spec`` (its scheduler runs in this process), no job submitted
     yet: its ``job_script()`` is what each job runs."""
-    import dask_jobqueue
+    dask_jobqueue = _jobqueue()
 
     log_dir = Path(log_dir).resolve()
     log_dir.mkdir(parents=True, exist_ok=True)
@@ -168,6 +168,24 @@ def job_cluster(spec: BatchSpec, log_dir: Path):
         interface=spec.interface, python=sys.executable, job_name="nrtraffic-sweep",
         job_script_prologue=prologue, worker_extra_args=worker_args, log_directory=str(log_dir),
         scheduler_options={"dashboard_address": ":0"})
+
+
+def _jobqueue():
+    """dask_jobqueue, imported with the command's own Ctrl-C handling kept (importing it replaces
+    the SIGINT handler with one that exits with status 0, skipping what the command does on Ctrl-C)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        import dask_jobqueue
+
+        return dask_jobqueue
+    before = signal.getsignal(signal.SIGINT)
+    try:
+        import dask_jobqueue
+    finally:
+        signal.signal(signal.SIGINT, before)
+    return dask_jobqueue
 
 
 def _error(message: str) -> Exception:

@@ -138,3 +138,21 @@ def test_a_sweep_on_slurm_equals_the_same_sweep_on_local_workers(tmp_path, capsy
     assert main(on_slurm) == 0
     assert "submitted" not in capsys.readouterr().err
     assert len(list((slurm / "jobs").glob("nrtraffic-sweep-*.err"))) == 2
+
+
+def test_ctrl_c_keeps_the_commands_own_handling():
+    """Importing dask_jobqueue replaces the SIGINT handler with one that exits with status 0; the
+    sweep imports it so that its own handler (a message, exit status 1, the jobs cancelled) stays."""
+    code = ("import signal, sys\n"
+            "def mine(*_): pass\n"
+            "signal.signal(signal.SIGINT, mine)\n"
+            "if sys.argv[1] == 'plain':\n"
+            "    import dask_jobqueue\n"
+            "else:\n"
+            "    from runners.clusters import _jobqueue\n"
+            "    _jobqueue()\n"
+            "print(signal.getsignal(signal.SIGINT) is mine)\n")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    got = {how: subprocess.run([sys.executable, "-c", code, how], capture_output=True, text=True, env=env,
+                               check=True).stdout.strip() for how in ("plain", "sweep")}
+    assert got == {"plain": "False", "sweep": "True"}
