@@ -150,17 +150,23 @@ def make_cluster(spec: BatchSpec, n_runs: int, log_dir: Path):
 def job_cluster(spec: BatchSpec, log_dir: Path):
     """The dask-jobqueue cluster of ``spec`` (its scheduler runs in this process), no job submitted
     yet: its ``job_script()`` is what each job runs."""
+    import dask
+
     dask_jobqueue = _jobqueue()
 
     log_dir = Path(log_dir).resolve()
     log_dir.mkdir(parents=True, exist_ok=True)
-    prologue = [f"cd {_quote(os.getcwd())}"]
+    # the site's dask-jobqueue configuration (~/.config/dask/jobqueue.yaml: module loads, say) comes first
+    def site(key: str) -> list[str]:
+        return list(dask.config.get(f"jobqueue.{spec.kind}.{key}", None) or [])
+
+    prologue = site("job-script-prologue") + [f"cd {_quote(os.getcwd())}"]
     if os.environ.get("PYTHONPATH"):
         prologue.append(f"export PYTHONPATH={_quote(os.environ['PYTHONPATH'])}")
-    worker_args = []
+    worker_args = site("worker-extra-args")
     if spec.walltime_s > 4 * LIFETIME_MARGIN_S:
         # a worker leaves before the scheduler kills its job, so that its run is not counted as a failure
-        worker_args = ["--lifetime", f"{int(spec.walltime_s - LIFETIME_MARGIN_S)}s"]
+        worker_args += ["--lifetime", f"{int(spec.walltime_s - LIFETIME_MARGIN_S)}s"]
     cls = getattr(dask_jobqueue, KINDS[spec.kind][1])
     return cls(
         cores=spec.cores, processes=spec.cores, memory=spec.memory, walltime=spec.walltime,

@@ -156,3 +156,19 @@ def test_ctrl_c_keeps_the_commands_own_handling():
     got = {how: subprocess.run([sys.executable, "-c", code, how], capture_output=True, text=True, env=env,
                                check=True).stdout.strip() for how in ("plain", "sweep")}
     assert got == {"plain": "False", "sweep": "True"}
+
+
+def test_the_sites_job_script_prologue_comes_first(tmp_path):
+    """Lines from the site's dask-jobqueue configuration (module loads) stay in the job script,
+    before the sweep's own."""
+    import dask
+
+    from runners.clusters import BatchSpec, job_cluster
+
+    spec = BatchSpec("slurm", 1, 1, 2**30, 600)
+    with dask.config.set({"jobqueue.slurm.job-script-prologue": ["module load sumo/1.28"],
+                          "jobqueue.slurm.worker-extra-args": ["--no-dashboard"]}):
+        with job_cluster(spec, tmp_path) as cluster:
+            lines = cluster.job_script().splitlines()
+    assert lines.index("module load sumo/1.28") < lines.index(f"cd {os.getcwd()}")
+    assert "--no-dashboard" in lines[-1]
