@@ -219,7 +219,8 @@ def add_arguments(p, where) -> None:
     g.add_argument("--job-memory", default=None, metavar="SIZE",
                    help=f"memory per job, e.g. 16GB or 16GiB (default {DEFAULT_MEMORY_PER_CORE_GIB} GiB per core)")
     g.add_argument("--job-walltime", default=None, metavar="HH:MM:SS",
-                   help=f"walltime per job (default {DEFAULT_WALLTIME}); workers leave "
+                   help=f"walltime per job (default {DEFAULT_WALLTIME}); a job that ends before the sweep is "
+                        f"replaced, and over {4 * LIFETIME_MARGIN_S / 60:g} min its workers leave "
                         f"{LIFETIME_MARGIN_S / 60:g} min before it ends")
     g.add_argument("--queue", "--partition", dest="queue", default=None, metavar="NAME",
                    help="Slurm partition or PBS queue (default: the scheduler's)")
