@@ -103,8 +103,8 @@ def _add_sweep(sub) -> None:
     p = sub.add_parser(
         "sweep", help="many seeds and grid points on Dask, aggregated with confidence intervals",
         description="Run every (grid point, seed) of a scenario, and optionally SUMO's junction control on the same "
-                    "seeds, on Dask distributed: a local cluster of worker processes by default, or an existing "
-                    "scheduler. Each run directory is written under a temporary name and renamed when finished; "
+                    "seeds, on Dask distributed: a local cluster of worker processes by default, an existing "
+                    "scheduler, or batch jobs of a Slurm or PBS cluster (--cluster). Each run directory is written under a temporary name and renamed when finished; "
                     "re-running the same command skips finished runs; a failing run is retried once and then "
                     "recorded as failed while the others go on. Writes DIR/sweep.csv (one row per run), "
                     "DIR/sweep_summary.csv (mean, sd, 95 % CI per grid point and control), DIR/sweep.md and "
@@ -131,6 +131,9 @@ def _add_cluster_args(p) -> None:
     where.add_argument("--workers", type=int, default=2, help="worker processes of the local cluster (default 2)")
     where.add_argument("--scheduler", default=None, metavar="ADDRESS",
                        help="use an existing Dask scheduler, e.g. tcp://10.0.0.5:8786 (workers must see DIR)")
+    from runners.clusters import add_arguments
+
+    add_arguments(p, where)  # --cluster slurm|pbs and the batch jobs' cores, memory, walltime, queue, account
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
     p.add_argument("--force", action="store_true",
                    help="run again, and replace, run directories in --out that were made with another "

@@ -104,11 +104,14 @@ def _figures(df: pd.DataFrame, summ: pd.DataFrame, out: Path) -> list[str]:
 
 
 def main(args) -> int:
+    from runners.clusters import from_args
+
+    batch = from_args(args)
     todo = jobs(args.out)
     check_resume(todo, force=args.force)
     remove_stale(args.out)
     df = run_sweep(todo, args.out, workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress,
-                   figures=_figures)
+                   figures=_figures, batch=batch)
     print((Path(args.out) / "sweep.md").read_text())
     failed = int((df["status"] != "ok").sum())
     if failed:

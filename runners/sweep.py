@@ -344,9 +344,11 @@ def _duration(s: float) -> str:
 
 
 def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | None = None,
-              progress: bool = True, figures=sweep_figures) -> pd.DataFrame:
+              progress: bool = True, figures=sweep_figures, batch=None) -> pd.DataFrame:
     """Run the jobs not yet finished on Dask, then write the tables and figures (``figures``, see
-    :func:`write_tables`) from every run directory. Returns ``sweep.csv`` as a DataFrame."""
+    :func:`write_tables`) from every run directory. Returns ``sweep.csv`` as a DataFrame. ``batch``
+    (a :class:`runners.clusters.BatchSpec`) runs the workers as batch jobs of Slurm or PBS, with
+    their job script and output in ``out/jobs``."""
     import dask
     from dask.distributed import Client, LocalCluster, as_completed
 
@@ -368,6 +370,11 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
                 except (OSError, TimeoutError, ValueError) as exc:
                     raise SweepError(f"--scheduler {scheduler}: cannot reach it within {SCHEDULER_TIMEOUT_S:g} s "
                                      f"({type(exc).__name__}): start it, or check the address") from None
+            elif batch is not None:
+                from runners.clusters import make_cluster
+
+                cluster = make_cluster(batch, len(todo), out / "jobs")
+                client = Client(cluster)
             else:
                 cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                        dashboard_address=":0", memory_limit=0)
@@ -925,10 +932,11 @@ def seed_figure(df: pd.DataFrame, path: Path) -> None:
 def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]]], controls: list[str], out: Path,
           duration_s: float | None = None, overrides: tuple[str, ...] = (), workers: int = 2,
           scheduler: str | None = None, force: bool = False, progress: bool = True,
-          allow_outside: bool = False) -> pd.DataFrame:
+          allow_outside: bool = False, batch=None) -> pd.DataFrame:
     """A whole sweep (``nrtraffic sweep``, ``nrtraffic.sweep``): check its size and every grid
     point's configuration, refuse a resume of another configuration (unless ``force``), then
-    :func:`run_sweep`. Returns ``sweep.csv`` as a DataFrame."""
+    :func:`run_sweep` (``batch``: on Slurm or PBS, see :mod:`runners.clusters`). Returns
+    ``sweep.csv`` as a DataFrame."""
     if scheduler is None and workers < 1:
         raise SweepError(f"--workers {workers}: need at least one worker process")
     n = len(seeds) * len(controls) * math.prod(len(v) for _, v in grid)
@@ -938,15 +946,18 @@ def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]
     jobs = plan(scenario_path, seeds, grid, controls, out, duration_s, tuple(overrides), allow_outside=allow_outside)
     check_resume(jobs, force=force)
     remove_stale(out)
-    return run_sweep(jobs, out, workers=workers, scheduler=scheduler, progress=progress)
+    return run_sweep(jobs, out, workers=workers, scheduler=scheduler, progress=progress, batch=batch)
 
 
 def main(args) -> int:
+    from runners.clusters import from_args
+
+    batch = from_args(args)  # --cluster and its job flags, checked before anything is planned or submitted
     grid = parse_grid(args.grid)
     controls = [NRTRAFFIC] + parse_baselines(args.baseline)
     df = study(args.scenario, parse_seeds(args.seeds), grid, controls, args.out, args.duration, tuple(args.overrides),
                workers=args.workers, scheduler=args.scheduler, force=args.force, progress=not args.no_progress,
-               allow_outside=args.allow_outside)
+               allow_outside=args.allow_outside, batch=batch)
     print((Path(args.out) / "sweep.md").read_text())
     n_failed = int((df["status"] != "ok").sum())
     if n_failed:
