@@ -110,7 +110,8 @@ def routed(path: Path, net_path: Path) -> Path:
         raise DemandFileError(f"demand.sumo_routes {path.name}: SUMO's duarouter could not be run to route its "
                               f"trips: {exc}") from None
     if proc.returncode != 0 or not out.is_file():
-        said = [ln.strip() for ln in (proc.stderr or proc.stdout).splitlines() if ln.strip()]
+        said = [ln.strip() for ln in (proc.stderr or proc.stdout).splitlines()
+                if ln.strip() and not ln.startswith("Quitting")]
         raise DemandFileError(f"demand.sumo_routes {path.name}: SUMO's duarouter could not route its trips: "
                               f"{'; '.join(said[-3:]) or f'exit {proc.returncode}'} (mend the element it names: "
                               "a trip needs a from and a to that some route connects)")
