@@ -216,7 +216,7 @@ class Engine:
         if self.traj is not None:
             try:
                 self.traj.close()
-            except OSError as exc:  # a full disk, say: the figures below are still returned
+            except Exception as exc:  # noqa: BLE001 - a full disk, say: the figures below are still returned
                 error = error or exc
         result = self._result(wall, error)
         if error is not None:

@@ -118,14 +118,16 @@ class TrajectoryWriter:
 
         if self._n == 0:
             return
-        batch = pa.RecordBatch.from_pydict(self._cols, schema=self._schema)
+        # (an interrupt inside append may have left the columns of its step unequal: that step is dropped)
+        n = min(len(v) for v in self._cols.values())
+        batch = pa.RecordBatch.from_pydict({k: v[:n] for k, v in self._cols.items()}, schema=self._schema)
         if self._stream is None:
             self._sink = pa.OSFile(str(self.partial), "wb")
             self._stream = pa.ipc.new_stream(self._sink, self._schema,
                                              options=pa.ipc.IpcWriteOptions(compression="zstd"))
         self._stream.write_batch(batch)
         self._sink.flush()
-        self.rows_written += self._n
+        self.rows_written += n
         self._cols = {k: [] for k in TRAJECTORY_COLUMNS}
         self._n = 0
 

@@ -260,7 +260,7 @@ def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: 
     def failed(error: str) -> RunFailed:  # nothing the engine could write: a summary that says so
         try:
             writer.close()
-        except OSError:
+        except Exception:  # noqa: BLE001 - (a full disk, or a writer stopped mid-step): the summary comes first
             pass
         summary = {"scenario": sc.general.name, "control": engine_options.get("label", "nrtraffic"),
                    "seed": resolved.general.seed, "status": "failed", "sim_time_s": 0.0,

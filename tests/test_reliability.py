@@ -88,7 +88,7 @@ def test_sigterm_or_ctrl_c_at_any_moment_leaves_a_readable_summary(tmp_path):
             assert proc.returncode == 1, (when - t0, sig, err)
             s = json.loads((out / "summary.json").read_text())
             name = "SIGTERM" if sig == signal.SIGTERM else "SIGINT"
-            assert s["status"] == "failed" and name in s["error"], (when - t0, s)
+            assert s["status"] == "failed" and name in s["error"], (when - t0, s, err[-2000:])
             assert 0 <= s["sim_time_s"] < 3600
 
 
@@ -522,3 +522,26 @@ def test_a_run_stopped_while_its_demand_is_built_says_failed(tmp_path, monkeypat
         run_scenario(scenario.load(CROSS4), out, duration_s=60)
     s = json.loads((out / "summary.json").read_text())
     assert s["status"] == "failed" and str(stop) in s["error"]
+
+
+def test_a_trajectory_step_cut_short_by_an_interrupt_is_dropped_and_the_file_stays_whole(tmp_path):
+    """An interrupt inside TrajectoryWriter.append leaves that step's columns of unequal length: the
+    file written at close holds every whole step before it, and nothing of the cut one."""
+    from nrtraffic.results import TRAJECTORY_COLUMNS, TrajectoryWriter
+
+    w = TrajectoryWriter(tmp_path / "trajectories.parquet")
+    row = {k: ("a" if k == "vehicle_id" else 1.0) for k in TRAJECTORY_COLUMNS}
+    for t in (0.0, 0.5, 1.0):
+        w.append(**{**row, "t": t})
+
+    class Interrupted:  # the value of a column that is not reached: the interrupt comes first
+        @property
+        def ndim(self):
+            raise KeyboardInterrupt
+
+    cut = dict(row, t=1.5, psi=Interrupted())
+    with pytest.raises(KeyboardInterrupt):
+        w.append(**cut)
+    w.close()
+    t = pq.read_table(tmp_path / "trajectories.parquet").to_pandas()
+    assert t["t"].tolist() == [0.0, 0.5, 1.0] and (t["vehicle_id"] == "a").all()
