@@ -146,9 +146,9 @@ class Demand:
             veh.append((vid, key, t, v0, pos, lane))
         others = {k: n for k, n in classes.items() if k != "passenger"}
         if veh:
-            self.notes.append(f"demand.sumo_routes: its {len(veh)} vehicles drive as nrtraffic's car (the file's vTypes "
-                              "are not used)" + (f", {', '.join(f'{n} of vClass {k}' for k, n in sorted(others.items()))} "
-                                                 "among them" if others else ""))
+            among = ", ".join(f"{n} of vClass {k}" for k, n in sorted(others.items()))
+            self.notes.append(f"demand.sumo_routes: its {len(veh)} vehicles drive as nrtraffic's car (the file's "
+                              "vTypes are not used)" + (f", {among} among them" if others else ""))
         return veh
 
     def _arrival_times(self, rng, rate: float, end: float) -> np.ndarray:
@@ -277,8 +277,8 @@ class Demand:
         U-turn) of turning movements ``names`` of one approach; equal shares where they give none."""
         d = self.sc.demand
         kinds = [self.movement_table[n][1] for n in names]  # (two roads of one turn share it)
-        share = np.array([{"left": d.turn_left, "right": d.turn_right, "uturn": 0.0}.get(k, 1.0 - d.turn_left - d.turn_right)
-                          / kinds.count(k) for k in kinds])
+        by_turn = {"left": d.turn_left, "right": d.turn_right, "uturn": 0.0}
+        share = np.array([by_turn.get(k, 1.0 - d.turn_left - d.turn_right) / kinds.count(k) for k in kinds])
         return share if share.sum() > 0 else np.ones(len(names))
 
     def demand_veh_h(self, begin: float, end: float, approach: str | None = None) -> float:
