@@ -67,9 +67,9 @@ class Controller:
     """``[controller]``: plant integration, predictor and Newton-Raphson flow (paper s. 3.1, 4.1)."""
 
     plant_step_s: float = 0.005  # forward-Euler step of the plant (paper dt)
-    predictor: str = "euler"  # integrator of the predictor: "euler" (the paper's) or "rk4" (README, Method)
+    predictor: str = "euler"  # integrator of the predictor: "euler" (the paper's) or "rk4" (docs/method.md)
     predictor_step_s: float = 0.001  # nominal step of the predictor (paper Delta t, for Euler)
-    horizon_s: float = 0.2  # prediction horizon T (not given by the paper; see README)
+    horizon_s: float = 0.2  # prediction horizon T (not given by the paper; see docs/method.md)
     alpha: float = 100.0  # speed-up of the update law, eq. (12)
     damping: float = 1e-6  # relative damping of the regularised inverse
     predictor_mass_factor: float = 1.0  # predictor mass / plant mass (paper's robustness test: 2)
@@ -260,10 +260,10 @@ class Demand:
 
 @dataclass(frozen=True)
 class HumanDriver:
-    """``[human]``: the vehicles that ``demand.controlled_share`` leaves to SUMO (README, Mixed
-    traffic). SUMO's car-following model drives them, in the controlled vehicles' dimensions.
+    """``[human]``: the vehicles that ``demand.controlled_share`` leaves to SUMO (docs/mixed-traffic.md).
+    SUMO's car-following model drives them, in the controlled vehicles' dimensions.
 
-    Their rule at a coordinated junction (README, Mixed traffic): a human driver stops at SUMO's
+    Their rule at a coordinated junction (docs/mixed-traffic.md): a human driver stops at SUMO's
     stop line (or short of the first conflict area its body would touch there), and when it stands
     there the coordinator reserves its crossing from a standing start, first come first served
     with the controlled vehicles' reservations and after the vehicle ahead of it on its lane: it
@@ -442,7 +442,7 @@ class Outputs:
 @dataclass(frozen=True)
 class Disturbances:
     """``[disturbances]``: what the controller measures and commands is not what the vehicle is
-    and does (README, Robustness). The plant stays exact; the tracker and both barriers see the
+    and does (docs/mixed-traffic.md, Robustness). The plant stays exact; the tracker and both barriers see the
     measured state. Noise is Gaussian, drawn afresh at every plant step from the run's seed; all
     zero (the default) is the undisturbed run."""
 

@@ -19,7 +19,7 @@ from runners.single import run_scenario
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIOS = ROOT / "sumo_scenarios"
 
-# the paper's predictor: forward Euler at Delta t = 0.001 s (the scenarios use RK4, README: Method)
+# the paper's predictor: forward Euler at Delta t = 0.001 s (the scenarios use RK4, docs/method.md)
 EULER = ['controller.predictor="euler"', "controller.predictor_step_s=0.001"]
 CURVED_VARIANTS = {
     "curved": [],
@@ -119,7 +119,7 @@ def _curved_table(r: dict, sweep: dict, base, euler: dict) -> str:
     ratio = d["steady_tracking_error_m"] / euler["curved"]["steady_tracking_error_m"]
     row("Euler predictor step 0.002 s, steady-state error", "~ +50 % (about 3 cm)",
         f"{_fmt_cm(d['steady_tracking_error_m'])} ({100 * (ratio - 1):+.1f} % against Euler at 0.001 s)",
-        d["steady_tracking_error_m"] <= 0.03, "absolute value below the paper's; the increase is smaller (see README)")
+        d["steady_tracking_error_m"] <= 0.03, "absolute value below the paper's; the increase is smaller (see docs/paper.md)")
     row("collisions", "0", str(c["collisions"]), c["collisions"] == 0)
     row("vehicles completing", "5", str(c["vehicles_completed"]), c["vehicles_completed"] == 5)
     lines = [

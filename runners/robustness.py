@@ -1,5 +1,5 @@
-"""``nrtraffic robustness``: the controller under measurement noise and actuator lag (README,
-Robustness).
+"""``nrtraffic robustness``: the controller under measurement noise and actuator lag
+(docs/mixed-traffic.md, Robustness).
 
 Runs the paper's barrier experiment (``paper_cbf``, seeds 1-5) and cross4 (400 veh/h per approach,
 seeds 1-3, 600 s) at every level of :data:`LEVELS` as one sweep (resumable, on Dask like

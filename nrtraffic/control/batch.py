@@ -14,7 +14,7 @@ Leaders (for the longitudinal barrier) are either controlled vehicles of the bat
 the start of the sub-step) or external vehicles whose state at ``t_start`` is extrapolated with
 constant acceleration.
 
-Disturbances (``[disturbances]``, README Robustness): with measurement noise the tracker and both
+Disturbances (``[disturbances]``, docs/mixed-traffic.md, Robustness): with measurement noise the tracker and both
 barriers see the measured state (the plant's plus the sub-step's row of ``noise``: own x, y, v_l,
 v_n, psi, then the leader's x, y, v_x, v_y), the plant stays exact and the figures (gaps, centre
 distances, deviations) are the true ones. With an actuator lag the plant receives the output of a

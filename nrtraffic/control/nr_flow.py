@@ -4,7 +4,7 @@ Predictor (eqs. 13-14): hold ``u`` constant over ``[t, t+T]``, integrate ``xi' =
 ``xi(t) = x(t)``; ``g(x, u) = h(xi(t+T)) = (xi_1, xi_2)``. Two integrators
 (``controller.predictor``): forward Euler with step ``Dt`` (the paper's, ``Dt`` = 0.001 s) and the
 classical fourth-order Runge-Kutta method (RK4), whose error at ``Dt`` = 0.02 s is far below
-Euler's at 0.001 s for a twentieth of the evaluations (README, Method).
+Euler's at 0.001 s for a twentieth of the evaluations (docs/method.md).
 
 Jacobian: ``dg/du`` is the exact derivative of the *discrete* predictor, by the sensitivity
 recursion that differentiates the integrator's own update (one pass beside the prediction instead

@@ -1,6 +1,6 @@
 """The crossing of a vehicle the coordinator does not steer: a human driver that stands at the
-stop line and sets off when its reservation starts (``demand.controlled_share``; README, Mixed
-traffic).
+stop line and sets off when its reservation starts (``demand.controlled_share``;
+docs/mixed-traffic.md).
 
 From rest, accelerating at ``a`` [m/s^2] up to ``v_cap`` [m/s], a vehicle covers ``d`` [m] in::
 

@@ -296,7 +296,7 @@ def _slow_arcs(v0: float, vm: float, D: float, T: float, b: PlanBounds):
 def from_rest(t0: float, D: float, a: float, v_cap: float) -> Profile:
     """A start from rest at ``t0``: constant acceleration ``a`` [m/s^2] up to ``v_cap`` [m/s], then
     cruise; ``T`` is when it has covered ``D`` [m] (its merging-zone entry). The crossing of a
-    controlled vehicle that queued at the stop line behind a human driver (README, Mixed traffic):
+    controlled vehicle that queued at the stop line behind a human driver (docs/mixed-traffic.md):
     it is not energy-optimal, and its speed starts below ``v_min``."""
     if not (a > 0.0 and v_cap > 0.0 and D >= 0.0):
         raise InfeasibleProfile(f"a start from rest needs a > 0, v_cap > 0, D >= 0 (got {a}, {v_cap}, {D})")
