@@ -160,3 +160,29 @@ def test_first_in_first_out_on_a_corridor_keeps_the_plans_behind_turning_leaders
     assert s["collisions"] == 0 and s["collisions_geometric"] == 0
     assert s["max_tracking_error_m"] < 5.0
     assert s["min_bumper_gap_m"] > 4.0
+
+
+def test_a_two_lane_road_between_controlled_junctions_is_refused_naming_it_and_the_fix(tmp_path, capsys):
+    """netgenerate's 2x1 grid of two-lane roads, both junctions controlled: exit 2 before SUMO
+    starts, naming the roads between them (from the network file) and what to do."""
+    import subprocess
+
+    import sumolib
+
+    from nrtraffic.sumo.netbuild import sumo_binary
+    from runners.cli import main
+
+    d = copy_scenario("cross4", tmp_path / "sc", 'id = "C"', "",
+                      '\n[[junctions]]\nid = "A0"\n\n[[junctions]]\nid = "B0"\n')
+    subprocess.run([sumo_binary("netgenerate"), "--grid", "--grid.x-number", "2", "--grid.y-number", "1",
+                    "--grid.length", "300", "--grid.attach-length", "300", "--default.lanenumber", "2",
+                    "--no-turnarounds", "true", "-o", str(d / "net.net.xml")], check=True, capture_output=True)
+    net = sumolib.net.readNet(str(d / "net.net.xml"))
+    between = sorted(e.getID() for e in net.getEdges() if {e.getFromNode().getID(), e.getToNode().getID()} == {"A0", "B0"})
+    assert between and all(net.getEdge(e).getLaneNumber() == 2 for e in between)
+    out = tmp_path / "run"
+    assert main(["run", str(d / "scenario.toml"), "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert all(repr(e) in err for e in between) and "more than one lane" in err
+    assert "leave one junction of each such pair out of [[junctions]]" in err
+    assert not out.exists()
