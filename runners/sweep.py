@@ -99,16 +99,26 @@ def recorded_fingerprint(run_dir: Path) -> str | None:
 
 
 # ------------------------------------------------------------------ arguments
+MAX_SEEDS = 1_000_000  # seeds of one sweep, even with --force
+
+
 def parse_seeds(text: str) -> list[int]:
     """``A:B`` (inclusive) or a comma list of integers."""
     try:
         if ":" in text:
-            a, b = text.split(":")
-            seeds = list(range(int(a), int(b) + 1))
+            a, b = (int(x) for x in text.split(":"))
         else:
             seeds = [int(x) for x in text.split(",") if x.strip()]
     except ValueError:
         raise SweepError(f"--seeds {text!r}: expected A:B or a comma list of integers") from None
+    if ":" in text:
+        for x in (a, b):  # (checked before the list is made: 1:3000000000 would fill the memory)
+            if not 0 <= x <= 2**31 - 1:
+                raise SweepError(f"--seeds {text!r}: seeds are 0 to 2^31 - 1, got {x}")
+        if b - a + 1 > MAX_SEEDS:
+            raise SweepError(f"--seeds {text!r}: {b - a + 1} seeds; a sweep takes at most {MAX_SEEDS} "
+                             "(split the study into several sweeps)")
+        seeds = list(range(a, b + 1))
     if not seeds:
         raise SweepError(f"--seeds {text!r} selects no seed")
     bad = [x for x in seeds if not 0 <= x <= 2**31 - 1]

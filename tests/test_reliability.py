@@ -217,6 +217,19 @@ def _scenario_copy(tmp_path, old=None, new=None, extra=""):
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--netstate-dump=n.xml"]', "",
      "--netstate-dump=n.xml would write files outside the run folder"),
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["-q"]', "", "no option -q"),
+    # device and state options that write files of their own into the working folder
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--device.ssm.probability", "1"]', "",
+     "--device.ssm.probability would write files outside the run folder"),
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--device.rerouting.output", "rr.xml"]', "",
+     "--device.rerouting.output would write files outside the run folder"),
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--save-state.times", "5"]', "",
+     "--save-state.times would write files outside the run folder"),
+    # an option the run sets itself (SUMO refused it once started), and one that makes SUMO wait for ever
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--time-to-teleport", "-1"]', "",
+     "--time-to-teleport: the run sets it itself"),
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--seed", "5"]', "", "--seed: the run sets it itself"),
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--remote-port", "9999"]', "",
+     "SUMO would wait for a TraCI client of its own"),
 ])
 def test_scenarios_that_would_run_wrong_exit_2_naming_the_problem(old, new, extra, message, tmp_path, capsys):
     d = _scenario_copy(tmp_path, old or None, new or None, extra)

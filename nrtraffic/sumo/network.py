@@ -204,8 +204,9 @@ _SUMO_WRITING: set[str] = set()
 
 
 def sumo_writing_options() -> set[str]:
-    """Names of SUMO's options that write a file (of type FILE in its output and report sections,
-    ``output-prefix``, and saving its configuration), from ``sumo --save-template --save-commented``."""
+    """Names of SUMO's options that write a file (of type FILE in its output and report sections, or
+    named ``*output*``; ``*.file``, ``save-state.*`` and the ssm device's; ``output-prefix``, and
+    saving its configuration), from ``sumo --save-template --save-commented``."""
     if not _SUMO_WRITING:
         import re
         import subprocess
@@ -222,9 +223,11 @@ def sumo_writing_options() -> set[str]:
                 section = m.group(1)
                 continue
             m = re.match(r'\s{8}<([\w.-]+) value=.*type="([^"]+)"', line)
-            if m and section in ("output", "report") and m.group(2).startswith("FILE") \
-                    and not m.group(1).endswith("input-file"):
+            if m and m.group(2).startswith("FILE") and not m.group(1).endswith("input-file") and (
+                    section in ("output", "report") or "output" in m.group(1)):
                 _SUMO_WRITING.add(m.group(1))
+            elif m and (m.group(1).startswith(("save-state.", "device.ssm.")) or m.group(1).endswith(".file")):
+                _SUMO_WRITING.add(m.group(1))  # (state files; the ssm device writes ssm_<vehicle>.xml unasked)
         _SUMO_WRITING.update({"output-prefix", "save-configuration", "save-template", "save-schema"})
     return _SUMO_WRITING
 
@@ -245,6 +248,17 @@ def sumo_short_options() -> dict[str, str]:
         for m in re.finditer(r"^\s+-([A-Za-z]), --([\w.-]+)", text, re.MULTILINE):
             _SUMO_SHORT[m.group(1)] = m.group(2)
     return _SUMO_SHORT
+
+
+# SUMO options each run sets itself (SumoSession): giving one again fails when SUMO starts
+RUN_SETS = {
+    "net-file": "scenario.network", "route-files": "the run's demand", "additional-files": "its detectors",
+    "configuration-file": "scenario.sumocfg is read by nrtraffic", "step-length": "sumo.step_length_s",
+    "seed": "--seed or scenario.seed", "lateral-resolution": "sumo.lateral_resolution_m",
+    "time-to-teleport": "-1: no vehicle is teleported", "collision.action": "collisions are recorded",
+    "collision.check-junctions": "collisions are recorded", "collision.mingap-factor": "collisions are recorded",
+    "no-step-log": "its own progress", "no-warnings": "its own messages", "duration-log.disable": "its own messages",
+}
 
 
 def check_sumo_args(args: tuple[str, ...]) -> None:
@@ -270,6 +284,13 @@ def check_sumo_args(args: tuple[str, ...]) -> None:
     if clock:
         raise NetworkError(f"sumo.extra_args: {', '.join(clock)} sets SUMO's clock, which the run keeps itself: "
                            "use scenario.begin_s for the start and scenario.duration_s (or --duration) for the length")
+    for a, n in given:
+        if n in RUN_SETS:
+            raise NetworkError(f"sumo.extra_args: {a if a.startswith('--') else f'{a} (--{n})'}: the run sets it "
+                               f"itself ({RUN_SETS[n]}); leave it out")
+        if n in ("remote-port", "num-clients"):
+            raise NetworkError(f"sumo.extra_args: {a}: SUMO would wait for a TraCI client of its own and the run "
+                               "would never start; leave it out")
     writing = [a if a.startswith("--") else f"{a} (--{n})" for a, n in given if n in sumo_writing_options()]
     if writing:
         raise NetworkError(f"sumo.extra_args: {', '.join(writing)} would write files outside the run folder; "
