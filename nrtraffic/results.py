@@ -98,6 +98,7 @@ class TrajectoryWriter:
             [(k, pa.string() if v == "string" else pa.float64()) for k, v in TRAJECTORY_COLUMNS.items()]
         )
         self.rows_written = 0
+        self._closed = False
 
     def append(self, **cols) -> None:
         """Append equal-length columns (arrays or lists); every trajectory column is required."""
@@ -132,9 +133,13 @@ class TrajectoryWriter:
         self._n = 0
 
     def close(self) -> None:
-        """Flush, and write ``path`` from the stream (an empty file when nothing was logged)."""
+        """Flush, and write ``path`` from the stream (an empty file when nothing was logged); once
+        closed, nothing more (a second close must not write an empty file over the first's)."""
         import pyarrow.parquet as pq
 
+        if self._closed:
+            return
+        self._closed = True
         self.flush()
         tmp = self.path.with_name(self.path.name + ".tmp")
         if self._stream is None:

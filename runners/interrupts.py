@@ -4,8 +4,9 @@ A signal must never end the process without a run directory that says what happe
 has written its first ``summary.json`` (``"status": "running"``) nothing can be kept, so a signal
 is *deferred*: it is noted, the pre-run checks and the set-up go on, and it is raised as soon as the
 run is *armed* (:func:`arm`), which then stops like any interrupt of a running simulation: what was
-finished is written and ``summary.json`` says ``"status": "failed"`` and why. A second signal while
-one is deferred stops at once (a way out of a slow check). Once the run's results are written the
+finished is written and ``summary.json`` says ``"status": "failed"`` and why; further signals are
+ignored while that is written. A second signal while one is deferred stops at once (a way out of a
+slow check). Once the run's results are written the
 command defers again (:func:`defer`), so that its figures and report are finished; :func:`pending`
 then tells the command that it was asked to stop.
 
@@ -37,10 +38,10 @@ def _interrupt(signum: int) -> KeyboardInterrupt:
 
 def _handler(signum, frame) -> None:
     global _pending, _received
+    if _armed and _received is not None:
+        return  # one is enough: the run is stopping, let its clean-up finish
     if _armed or _pending is not None:
         _received = signum
-        if signum == signal.SIGTERM:
-            signal.signal(signal.SIGTERM, signal.SIG_IGN)  # one is enough: let the clean-up finish
         raise _interrupt(signum)
     _pending = signum
 

@@ -257,13 +257,13 @@ def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: 
         result.summary.update(extra_summary or {})
         _write(result, out)
 
-    def failed(error: str) -> RunFailed:  # nothing the engine could write: a summary that says so
+    def failed(error: str, sim_time_s: float = 0.0) -> RunFailed:  # nothing the engine could write: say so
         try:
-            writer.close()
+            writer.close()  # (nothing, where the engine closed it)
         except Exception:  # noqa: BLE001 - (a full disk, or a writer stopped mid-step): the summary comes first
             pass
         summary = {"scenario": sc.general.name, "control": engine_options.get("label", "nrtraffic"),
-                   "seed": resolved.general.seed, "status": "failed", "sim_time_s": 0.0,
+                   "seed": resolved.general.seed, "status": "failed", "sim_time_s": sim_time_s,
                    "error": _named(error), **(extra_summary or {})}
         write_summary(out / "summary.json", summary)
         update_manifest(out)
@@ -271,13 +271,16 @@ def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: 
 
     if engine_options.get("control", True):
         _kernel_cache.announce()  # the first run after installing compiles the kernels (numba)
+    engine = None
     try:
         interrupts.arm()  # a SIGTERM or Ctrl-C that came during the checks stops the run here
         engine = Engine(resolved, out, trajectories=writer, progress=progress, checkpoint=checkpoint,
                         **engine_options)
         result = engine.run()  # (turns an interrupt while it runs into RunFailed)
-    except KeyboardInterrupt as exc:  # before the engine ran
-        raise failed(f"stopped before the simulation started: {type(exc).__name__}: {exc}") from exc
+    except KeyboardInterrupt as exc:  # before the engine ran, or while it gathered its figures
+        t = engine.t if engine is not None else 0.0
+        when = f"at t={t:.2f} s, its figures not gathered" if t > 0 else "before the simulation started"
+        raise failed(f"stopped {when}: {type(exc).__name__}: {exc}", t) from exc
     except NetworkError:  # the junction or its zones do not suit: nothing was simulated, nothing is kept
         update_manifest(out)
         remove_run_files(out, keep=sc.network_path)
@@ -291,7 +294,9 @@ def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: 
             raise RunFailed(f"{exc}; and the figures could not be written into {out}: {werr}", exc.result) from exc
         raise
     except Exception as exc:  # the figures of a stopped run could not be gathered (SUMO's outputs cut short)
-        raise failed(f"run stopped, and its figures could not be gathered: {type(exc).__name__}: {exc}") from exc
+        t = engine.t if engine is not None else 0.0
+        raise failed(f"run stopped at t={t:.2f} s, and its figures could not be gathered: {type(exc).__name__}: {exc}",
+                     t) from exc
     result.summary.update(extra_summary or {})
     interrupts.defer()  # the run is done: a signal now lets its figures and report be finished
     try:
