@@ -35,6 +35,10 @@ def writable_dir(path: Path) -> None:
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise OutputError(f"--out {path}: exists and is not a folder")
+    odd = sorted({c for c in str(path.absolute()) if c in SUMO_PATH_CHARS})
+    if odd:
+        raise OutputError(f"--out {path}: its path holds {' '.join(repr(c) for c in odd)}, which SUMO reads in a file "
+                          "name as a list separator or a host:port; choose a folder without them")
     try:
         path.mkdir(parents=True, exist_ok=True)
         probe = path / f".write-test-{threading.get_ident()}"
@@ -44,10 +48,13 @@ def writable_dir(path: Path) -> None:
         raise OutputError(f"--out {path}: cannot write there: {exc.strerror or exc}") from None
 
 
+SUMO_PATH_CHARS = ",:"  # in a file name SUMO reads a comma as a list separator, "host:port" as a socket
+
+
 def slug(name: str) -> str:
     """A scenario name as a folder name under runs/: letters, digits, ``.``, ``_`` and ``-`` only
-    (a name such as ``../../x`` cannot lead out of it)."""
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._-") or "run"
+    (a name such as ``../../x`` cannot lead out of it), at most 100 characters."""
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._-")[:100].strip("._-") or "run"
 
 
 def claim(out: Path, sc, seed, duration, control: str, force: bool) -> None:

@@ -324,6 +324,7 @@ def _main(argv: list[str] | None) -> int:
     from nrtraffic.engine import RunFailed
     from nrtraffic.scenario import ScenarioError
     from nrtraffic.sumo.network import NetworkError
+    from nrtraffic.sumo.netbuild import SumoToolError
     from runners.replay import ReplayError
     from runners.sweep import SweepError
 
@@ -387,6 +388,14 @@ def _main(argv: list[str] | None) -> int:
         return 1
     except KeyboardInterrupt as exc:  # outside a run (a run turns it into RunFailed)
         print(f"nrtraffic: stopped: {exc or 'interrupted'}", file=sys.stderr)
+        return 1
+    except SumoToolError as exc:  # netconvert or another SUMO tool (a baseline's network)
+        stop = interrupts.pending()
+        print(f"nrtraffic: {f'stopped by {stop}: ' if stop else ''}{exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:  # a full disk, a folder that went away: what could not be written, in one line
+        where = f" {exc.filename}" if exc.filename else " the run's files"
+        print(f"nrtraffic: cannot write{where}: {exc.strerror or exc}", file=sys.stderr)
         return 1
     return 0
 

@@ -22,6 +22,11 @@ def check(sc: scenario_mod.Scenario) -> None:
     """What can be checked before SUMO starts: the network is a SUMO network with the junction and
     the edges the scenario names, and ``sumo.extra_args`` are SUMO options (NetworkError)."""
     edges = tuple(e for a in sc.approaches for e in (*a.route, a.merge_entry_edge))
+    files = [sc.network_path] + (sc.demand.route_files(sc.base_dir) if sc.demand.sumo_routes else [])
+    for f in files:
+        if "," in str(f):
+            raise NetworkError(f"{f}: its path holds ',', which SUMO reads in a file name as a list separator; "
+                               "move the scenario to a folder without commas")
     check_scenario(sc.network_path, [j.id for j in sc.controlled_junctions()], edges)
     check_sumo_args(tuple(sc.sumo.extra_args))
 

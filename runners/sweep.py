@@ -939,6 +939,22 @@ def seed_figure(df: pd.DataFrame, path: Path) -> None:
     plt.close(fig)
 
 
+def check_out(out: Path) -> None:
+    """A sweep's ``--out``: a folder it can write (not a file, no ',' or ':' in its path, which SUMO
+    misreads), either empty or an earlier sweep's (it has ``runs/``): a folder of other files is
+    refused, so that a sweep's tables never replace a user's files of the same name."""
+    from runners.api import OutputError, writable_dir
+
+    existed = out.is_dir()
+    try:
+        writable_dir(out)
+    except OutputError as exc:
+        raise SweepError(str(exc)) from None
+    if existed and not (out / "runs").is_dir() and any(p.name != "jobs" for p in out.iterdir()):
+        raise SweepError(f"--out {out} holds files and no earlier sweep (no runs/ folder): choose an empty folder, "
+                         "or the folder of the sweep to resume")
+
+
 def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]]], controls: list[str], out: Path,
           duration_s: float | None = None, overrides: tuple[str, ...] = (), workers: int = 2,
           scheduler: str | None = None, force: bool = False, progress: bool = True,
@@ -953,6 +969,7 @@ def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]
     if n > MAX_RUNS and not force:
         raise SweepError(f"the sweep has {n} runs, more than {MAX_RUNS}: narrow --seeds or --grid, or --force to "
                          "run them all")
+    check_out(Path(out))
     jobs = plan(scenario_path, seeds, grid, controls, out, duration_s, tuple(overrides), allow_outside=allow_outside)
     check_resume(jobs, force=force)
     remove_stale(out)
