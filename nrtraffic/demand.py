@@ -102,6 +102,13 @@ class Demand:
             if mv not in self.movement_table:
                 raise ValueError(f"vehicle {v.id}: {mv!r} is not a movement ({', '.join(self.movement_table)})")
             veh.append((v.id, mv, v.depart_s, v.depart_speed_mps, v.depart_pos_m))
+        ids = [v[0] for v in veh]
+        if len(set(ids)) != len(ids):
+            seen, twice = set(), []
+            for i in ids:
+                (twice.append(i) if i in seen else seen.add(i))
+            raise ValueError(f"vehicle id {twice[0]!r} is given twice ([[vehicles]] and the generated or file demand "
+                             "name vehicles <approach>.<k> and by the file's ids): give the [[vehicles]] another id")
         veh.sort(key=lambda v: v[2])
         if self.layout.next_junction:
             veh = self._extend_routes(veh, rates)
@@ -279,7 +286,7 @@ class Demand:
         kinds = [self.movement_table[n][1] for n in names]  # (two roads of one turn share it)
         by_turn = {"left": d.turn_left, "right": d.turn_right, "uturn": 0.0}
         share = np.array([by_turn.get(k, 1.0 - d.turn_left - d.turn_right) / kinds.count(k) for k in kinds])
-        return share if share.sum() > 0 else np.ones(len(names))
+        return share if share.sum() > 0 else np.array([0.0 if k == "uturn" else 1.0 for k in kinds])
 
     def demand_veh_h(self, begin: float, end: float, approach: str | None = None) -> float:
         """Mean demand into the junctions (or one approach) over ``[begin, end]`` [veh/h]: every

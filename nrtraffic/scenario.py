@@ -737,6 +737,11 @@ def _from_sumocfg(data: dict, base_dir: Path, allow_outside: bool) -> None:
             t = float(v) if ":" not in v else sum(float(x) * f for x, f in zip(reversed(v.split(":")), (1, 60, 3600, 86400)))
         except ValueError:
             raise ScenarioError(f"scenario.sumocfg {name}: <{cfg_key} value={v!r}> is not a time") from None
+        if not math.isfinite(t) or (t < 0 and not (cfg_key == "end" and t == -1)):  # (SUMO's end -1: none)
+            raise ScenarioError(f"scenario.sumocfg {name}: <{cfg_key} value={v!r}> is not a time of SUMO's clock")
+        if cfg_key == "end" and t >= 0 and t <= float(sc.get("begin_s", 0.0)) and "duration_s" not in sc:
+            raise ScenarioError(f"scenario.sumocfg {name}: <end value={v!r}> is not after the begin "
+                                f"({float(sc.get('begin_s', 0.0)):g} s); mend it, or give scenario.duration_s")
         if key == "begin_s":
             sc.setdefault("begin_s", t)
         elif "duration_s" not in sc and t >= 0:

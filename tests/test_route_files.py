@@ -97,6 +97,12 @@ def test_a_route_file_drives_a_corridor_each_vehicle_on_its_whole_route(tmp_path
     ('<vehicle id="x" depart="1" departLane="left"><route edges="W_J1 J1_J2"/></vehicle>',
      "departLane='left' is not a lane index"),
     ('<trip id="x" depart="1" from="W_J1" to="J1_J2" departLane="left"/>', "Invalid departLane definition for trip 'x'"),
+    ('<vehicle id="x" depart="1" departSpeed="fast"><route edges="W_J1 J1_J2"/></vehicle>',
+     "departSpeed='fast' is not a number"),
+    ('<vehicle id="x" depart="1" departSpeed="-3"><route edges="W_J1 J1_J2"/></vehicle>', "departSpeed=-3 is negative"),
+    ('<vehicle id="x" depart="1" departPos="-5"><route edges="W_J1 J1_J2"/></vehicle>',
+     "departPos=-5: give the position from the edge's start"),
+    ('<vehicle id="x" depart="-5"><route edges="W_J1 J1_J2"/></vehicle>', "depart=-5 is negative"),
     ('<trip id="x" depart="1" from="W_J1" to="J1_J2" departPos="900"/>', "r.rou.xml: <vehicle id='x'>: departPos=900.00 lies beyond its first edge 'W_J1'"),
 ])
 def test_a_route_the_network_cannot_drive_is_refused_before_sumo_starts(tmp_path, body, message):
@@ -193,3 +199,29 @@ def test_a_sumocfg_gives_the_network_route_files_begin_and_end(tmp_path):
     assert dep["a"][1] == 10.0 and dep["b"][1] == 30.0
     assert dem.route_edges(dep["a"][0]) == ("N1_J1", "J1_J2", "J2_S2")
     assert dem.itineraries[dep["b"][0]] == ("W_J1.straight", "J1_J2.straight", "J2_J3.straight")
+
+
+@pytest.mark.parametrize("begin, end, message", [
+    ("100", "40", "<end value='40'> is not after the begin (100 s)"),
+    ("0", "nan", "<end value='nan'> is not a time of SUMO's clock"),
+])
+def test_a_sumocfg_whose_end_is_not_after_its_begin_is_refused(tmp_path, begin, end, message):
+    from nrtraffic import scenario
+    from nrtraffic.scenario import ScenarioError
+
+    d = _corridor(tmp_path)
+    (d / "c.sumocfg").write_text(f'<configuration><time><begin value="{begin}"/><end value="{end}"/></time>'
+                                 '</configuration>')
+    toml = d / "scenario.toml"
+    toml.write_text(toml.read_text().replace("duration_s = 600.0\n", 'sumocfg = "c.sumocfg"\n'))
+    with pytest.raises(ScenarioError, match=re.escape(message)):
+        scenario.load(toml)
+
+
+def test_a_listed_vehicle_with_a_generated_vehicles_id_is_refused(tmp_path):
+    """[[vehicles]] id = "N_in.0" beside random demand, which names its vehicles <approach>.<k>:
+    refused before SUMO starts (SUMO refused the second insertion at t = 1 s)."""
+    d = copy_scenario("cross4", tmp_path / "sc", extra='\n[[vehicles]]\nid = "N_in.0"\napproach = "N_in.straight"\n'
+                                                       'depart_s = 50.0\n')
+    r = _run(["run", d / "scenario.toml", "--duration", "60", "--out", tmp_path / "o"])
+    assert r.returncode == 2 and "vehicle id 'N_in.0' is given twice" in r.stderr, r.stderr

@@ -44,6 +44,9 @@ def _num(el, key: str, where: str, default=None) -> float:
 
 
 DEPART_LANES = ("random", "free", "allowed", "best", "best_prob", "first")  # SUMO's departLane words
+# SUMO's departSpeed words (read as the run's entry speed) and departPos words (read as SUMO's base)
+DEPART_SPEEDS = ("random", "max", "desired", "speedLimit", "last", "avg")
+DEPART_POSITIONS = ("random", "free", "random_free", "base", "last", "stop", "splitFront")
 _ROUTED: dict[tuple, Path] = {}  # (file, its version, network) -> the file routed by duarouter, once per process
 _TMP: list = []  # the process's folder for routed and merged files, removed when the process ends
 
@@ -174,15 +177,21 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
 
     def speed(el, where: str) -> float:
         v = el.get("departSpeed")
-        if v is None or not v.replace(".", "", 1).isdigit():
+        if v is None or v in DEPART_SPEEDS:
             return entry_speed_mps
-        return _num(el, "departSpeed", where)
+        x = _num(el, "departSpeed", where)
+        if x < 0:
+            raise DemandFileError(f"{where}: departSpeed={v} is negative")
+        return x
 
     def position(el, where: str, first: str) -> float:  # departPos [m] where a number, else -1 (SUMO's base)
         v = el.get("departPos")
-        if v is None or not v.replace(".", "", 1).isdigit():
+        if v is None or v in DEPART_POSITIONS:
             return -1.0
         x = _num(el, "departPos", where)
+        if x < 0:
+            raise DemandFileError(f"{where}: departPos={v}: give the position from the edge's start (0 or more), "
+                                  "or one of " + ", ".join(DEPART_POSITIONS))
         if net is not None and x > net.getEdge(first).getLength():
             raise DemandFileError(f"{where}: departPos={v} lies beyond its first edge {first!r} "
                                   f"({net.getEdge(first).getLength():.1f} m long)")
@@ -216,7 +225,10 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
         v0, x0, ln = speed(el, where), position(el, where, edges[0]), lane(el, where, edges[0])
         kind = vclass.get(el.get("type"), "passenger")
         if tag in ("vehicle", "trip"):
-            out.append((vid, legs, _num(el, "depart", where), v0, x0, edges, ln, kind))
+            t = _num(el, "depart", where)
+            if t < 0:
+                raise DemandFileError(f"{where}: depart={el.get('depart')} is negative (SUMO's clock starts at 0)")
+            out.append((vid, legs, t, v0, x0, edges, ln, kind))
             continue
         begin = _num(el, "begin", where, 0.0)
         end = min(_num(el, "end", where, math.inf), end_s)
