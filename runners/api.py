@@ -18,6 +18,7 @@ command line imports the helpers it shares with the API from here.
 from __future__ import annotations
 
 import json
+import math
 import re
 import threading
 from collections.abc import Iterable, Mapping
@@ -187,8 +188,6 @@ class Sweep:
 # ------------------------------------------------------------------ operations
 def _toml(v) -> str:
     """A Python value as TOML text, for a ``section.key=value`` setting."""
-    import math
-
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, int):
@@ -215,6 +214,34 @@ def settings(overrides) -> list[str]:
     if isinstance(overrides, Mapping):
         return [f"{k}={_toml(v)}" for k, v in overrides.items()]
     return [str(o) for o in overrides]
+
+
+def _seed_duration(sc, seed, duration_s) -> tuple[int, float | None]:
+    """``seed`` and ``duration_s`` checked as the command checks ``--seed`` and ``--duration``
+    (ScenarioError naming them): a whole number 0 to 2^31 - 1, and a finite 0 to a week [s]."""
+    from nrtraffic.limits import MAX_DURATION_S, MAX_SEED
+    from nrtraffic.scenario import ScenarioError
+
+    if seed is not None:
+        if isinstance(seed, bool) or not isinstance(seed, (int, float, str)) or str(seed).strip() == "":
+            raise ScenarioError(f"seed={seed!r}: give a whole number 0 to {MAX_SEED}")
+        try:
+            value = float(seed)
+        except ValueError:
+            raise ScenarioError(f"seed={seed!r}: give a whole number 0 to {MAX_SEED}") from None
+        if not (math.isfinite(value) and value == int(value) and 0 <= value <= MAX_SEED):
+            raise ScenarioError(f"seed={seed!r}: give a whole number 0 to {MAX_SEED}")
+        seed = int(value)
+    if duration_s is not None:
+        try:
+            d = float(duration_s)
+        except (TypeError, ValueError):
+            raise ScenarioError(f"duration_s={duration_s!r}: give seconds, 0 to {MAX_DURATION_S:g}") from None
+        if not (math.isfinite(d) and 0 <= d <= MAX_DURATION_S):
+            raise ScenarioError(f"duration_s={duration_s!r}: give seconds, 0 to {MAX_DURATION_S:g} (0: until every "
+                                "vehicle has left)")
+        duration_s = d
+    return (sc.general.seed if seed is None else seed), duration_s
 
 
 def _out(out, prefix: str) -> Path:
@@ -251,7 +278,7 @@ def run(scenario: str | Path, *, seed: int | None = None, duration_s: float | No
     from runners.single import run_scenario
 
     sc = scenario_mod.load(scenario, settings(overrides), allow_outside=allow_outside)
-    seed = sc.general.seed if seed is None else int(seed)
+    seed, duration_s = _seed_duration(sc, seed, duration_s)
     out = _out(out, f"{slug(sc.general.name)}-seed{seed}")
     claim(out, sc, seed, duration_s, "nrtraffic", force)
     run_scenario(sc, out, seed=seed, duration_s=duration_s, progress=progress)
@@ -271,7 +298,7 @@ def baseline(scenario: str | Path, junction: str, *, seed: int | None = None, du
     from runners.baseline import run_baseline
 
     sc = scenario_mod.load(scenario, settings(overrides), allow_outside=allow_outside)
-    seed = sc.general.seed if seed is None else int(seed)
+    seed, duration_s = _seed_duration(sc, seed, duration_s)
     out = _out(out, f"{slug(sc.general.name)}-seed{seed}-{junction}")
     claim(out, sc, seed, duration_s, f"sumo_{junction}", force)
     run_baseline(sc, junction, out, seed=seed, duration_s=duration_s, progress=progress)

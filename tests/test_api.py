@@ -1,6 +1,7 @@
 """The Python API (``nrtraffic.run``, ``nrtraffic.baseline``, ``nrtraffic.sweep``): the DataFrames
 it returns against SUMO's own outputs of the same run."""
 
+import re
 import shutil
 import tempfile
 import xml.etree.ElementTree as ET
@@ -103,3 +104,16 @@ def test_sweep_returns_its_table(tmp_path):
         assert s["seed"] == t["seed"].iloc[i] and s["vehicles_spawned"] == t["vehicles_spawned"].iloc[i]
         assert sw.run(i).summary == s
     assert len(sw.summary) == 2 and sw.report.is_file()
+
+
+@pytest.mark.parametrize("kw, named", [
+    ({"seed": 2**31}, "seed=2147483648"), ({"seed": 1.5}, "seed=1.5"), ({"seed": "abc"}, "seed='abc'"),
+    ({"duration_s": float("nan")}, "duration_s=nan"), ({"duration_s": -5}, "duration_s=-5"),
+    ({"duration_s": float("inf")}, "duration_s=inf"),
+])
+def test_api_refuses_a_seed_or_duration_the_command_refuses(tmp_path, kw, named):
+    from nrtraffic.scenario import ScenarioError
+
+    with pytest.raises(ScenarioError, match=re.escape(named)):
+        nrtraffic.run(CROSS4, out=tmp_path / "o", **kw)
+    assert not (tmp_path / "o").exists()
