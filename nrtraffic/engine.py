@@ -190,7 +190,7 @@ class Engine:
                                        {v.id: v for v in self.sc.vehicles})
             copy = sdir / self.network_path.name  # the run directory's own copy, where there is one
             write_sumocfg(sdir / "run.sumocfg", copy if copy.is_file() else self.network_path, routes,
-                          self.sc.sumo.step_length_s)
+                          self.sc.sumo.step_length_s, self.sc.general.begin_s)
             o = self.sc.outputs
             detectors = build.queue_detectors(self.sc, self.layout, self.network_path, self.workdir, sdir,
                                               self.additional)

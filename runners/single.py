@@ -118,7 +118,7 @@ def prepare_run_dir(sc: scenario_mod.Scenario, out: Path) -> Path:
 def route_copies(sc: scenario_mod.Scenario) -> list[tuple[Path, str]]:
     """The scenario's route files (``demand.sumo_routes``) and the names of their copies in a run
     directory (``sumo/``, beside the network's), so that the run can be replayed from it alone."""
-    out, used = [], {sc.network_path.name}
+    out, used = [], {sc.network_path.name, "routes.rou.xml", "run.sumocfg", "queues.add.xml", "tls_offsets.add.xml"}
     for f in (sc.demand.route_files(sc.base_dir) if sc.demand.sumo_routes else []):
         name, k = f.name, 1
         while name in used:
@@ -155,7 +155,7 @@ MANIFEST = "manifest.json"
 # what a run of an earlier version (without a manifest) wrote into its directory
 RUN_FILES = ("summary.json", "vehicles.csv", "movements.csv", "approaches.csv", "trajectories.parquet",
              "trajectories.parquet.tmp", "trajectories.partial.arrows", "scenario.resolved.toml", "movements.json",
-             "movements.png", "delays.png", "queues.png", "time_space.png", "report.html", "tripinfo.xml",
+             "movements.png", "delays.png", "queues.png", "time_space.png", "arterial.png", "report.html", "tripinfo.xml",
              "collisions.xml", "fcd.xml", "queues.xml", "summary.json.tmp", "vehicles.csv.tmp", "movements.csv.tmp",
              "approaches.csv.tmp")
 

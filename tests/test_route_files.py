@@ -144,6 +144,8 @@ def test_a_route_file_at_seven_in_the_morning_gives_the_figures_of_the_same_file
     pd.testing.assert_frame_equal(a[num], b[num], rtol=1e-6, atol=1e-6)
     sa, sb = (json.loads((runs[k] / "summary.json").read_text()) for k in (0, 25200))
     assert sb["begin_s"] == 25200 and sa["begin_s"] == 0
+    cfg = ET.parse(runs[25200] / "sumo" / "run.sumocfg").getroot()  # (sumo-gui -c opens it at 07:00 too)
+    assert float(next(cfg.iter("begin")).get("value")) == 25200
     for key in ("vehicles_spawned", "throughput_veh_h", "mean_delay_s", "demand_veh_h", "measure_from_s", "measure_to_s"):
         assert sa[key] == pytest.approx(sb[key], rel=1e-9, abs=1e-9), key
     # SUMO's own clock ran from 07:00: its tripinfo departures are the relative ones plus 25200

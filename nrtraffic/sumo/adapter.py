@@ -123,9 +123,9 @@ def handover_tau_s(spacing_m: float, headway_s: float, length_m: float, min_gap_
     return min(1.0, max(0.9 * tau, step_s))
 
 
-def write_sumocfg(path: Path, network: Path, routes: Path, step_length_s: float) -> None:
+def write_sumocfg(path: Path, network: Path, routes: Path, step_length_s: float, begin_s: float = 0.0) -> None:
     """A SUMO configuration that opens ``network`` with ``routes`` (``sumo-gui -c path``), paths
-    relative to its own folder."""
+    relative to its own folder, starting at ``begin_s`` (SUMO's clock, ``scenario.begin_s``)."""
     import os
 
     def rel(p):
@@ -134,7 +134,8 @@ def write_sumocfg(path: Path, network: Path, routes: Path, step_length_s: float)
     Path(path).write_text(
         '<?xml version="1.0" encoding="UTF-8"?>\n<configuration>\n'
         f'    <input>\n        <net-file value="{rel(network)}"/>\n        <route-files value="{rel(routes)}"/>\n'
-        f'    </input>\n    <time>\n        <step-length value="{step_length_s:g}"/>\n    </time>\n</configuration>\n')
+        f'    </input>\n    <time>\n        <begin value="{begin_s:g}"/>\n        <step-length value="{step_length_s:g}"/>\n'
+        '    </time>\n</configuration>\n')
 
 
 def write_routes(path: Path, vtype, routes: dict[str, tuple[str, ...]], vehicles, t0_s: float = 0.0) -> None:
