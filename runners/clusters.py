@@ -117,6 +117,9 @@ def from_args(args) -> BatchSpec | None:
     walltime = parse_walltime(args.job_walltime if args.job_walltime is not None else DEFAULT_WALLTIME)
     directives = tuple(d.strip() for d in (args.job_directives or ()))
     for d in directives:
+        if any(ord(c) < 32 for c in d):  # (a newline would end the header line: the rest would run as a command)
+            raise _error(f"--job-directive {d!r}: holds a line break or control character; give one option per "
+                         "--job-directive")
         if not d.startswith("-"):
             raise _error(f"--job-directive {d!r}: expected an option of the job script's header, e.g. "
                              f"--job-directive=--qos=short (it becomes '#SBATCH --qos=short')")
@@ -136,6 +139,20 @@ def make_cluster(spec: BatchSpec, n_runs: int, log_dir: Path):
     cluster = job_cluster(spec, log_dir)
     log_dir = Path(log_dir).resolve()
     (log_dir / "job.sh").write_text(cluster.job_script())
+    if spec.kind == "slurm":  # the scheduler's own check of the script (partition, account, directives) first
+        import subprocess
+
+        try:
+            proc = subprocess.run(["sbatch", "--test-only", str(log_dir / "job.sh")], capture_output=True, text=True,
+                                  timeout=60)
+        except (OSError, subprocess.TimeoutExpired) as exc:
+            cluster.close()
+            raise _error(f"--cluster slurm: sbatch --test-only could not check the job script: {exc}") from None
+        if proc.returncode != 0:
+            cluster.close()
+            said = "; ".join(ln.strip() for ln in proc.stderr.splitlines() if ln.strip())[-400:]
+            raise _error(f"--cluster slurm: Slurm refuses the job script ({log_dir / 'job.sh'}): {said} (check "
+                         "--partition, --account, --job-directive, --job-memory, --job-walltime)")
     n_jobs = max(1, min(spec.jobs, math.ceil(n_runs / spec.cores)))
     # adaptive with a fixed size: a job that ends (its walltime, scancel, a node lost) is replaced by a new one,
     # and its run is retried on another worker

@@ -40,6 +40,8 @@ def test_walltime_forms():
     (["--cluster", "slurm", "--job-cores", "0"], "--job-cores", "at least one"),
     (["--job-walltime", "02:00:00"], "--job-walltime", "--cluster slurm"),
     (["--queue", "short"], "--queue", "--cluster slurm"),
+    # a line break would end the #SBATCH line and run the rest as a command of the job
+    (["--cluster", "slurm", "--job-directive", "--comment=x\necho injected"], "--job-directive", "line break"),
 ])
 def test_bad_job_flags_exit_2_before_anything_is_submitted(tmp_path, capsys, flags, flag, fix):
     out = tmp_path / "out"
@@ -172,3 +174,17 @@ def test_the_sites_job_script_prologue_comes_first(tmp_path):
             lines = cluster.job_script().splitlines()
     assert lines.index("module load sumo/1.28") < lines.index(f"cd {os.getcwd()}")
     assert "--no-dashboard" in lines[-1]
+
+
+def test_a_job_script_slurm_refuses_is_exit_2_before_any_job_is_submitted(tmp_path, capsys):
+    """An unknown partition: Slurm's own check of the script (sbatch --test-only) refuses it, the
+    sweep exits 2 naming Slurm's words and the flags (it hung, with a traceback)."""
+    reason = _slurm_answers()
+    if reason:
+        pytest.skip(reason)
+    out = tmp_path / "out"
+    code = main(["sweep", CROSS4, "--seeds", "1", "--duration", "30", "--set", "outputs.warmup_s=0", "--out", str(out),
+                 "--no-progress", "--cluster", "slurm", "--queue", "nosuchpartition"])
+    err = capsys.readouterr().err
+    assert code == 2 and "invalid partition" in err and "--partition" in err, err
+    assert not (out / "runs").exists()
