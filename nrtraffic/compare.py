@@ -61,6 +61,8 @@ def _check(run_dir: Path) -> dict:
         raise CompareError(f"{run_dir}: not a run directory (no summary.json)") from None
     except (OSError, ValueError) as exc:
         raise CompareError(f"{run_dir}: summary.json cannot be read ({exc})") from None
+    if not isinstance(s, dict):
+        raise CompareError(f"{run_dir}: summary.json is not a run's summary (not a JSON object)")
     status = s.get("status")
     if status not in FINISHED:
         why = f": {s['error']}" if s.get("error") else ""
@@ -101,8 +103,11 @@ def load(run_dirs: list[Path]) -> list[Run]:
                            "one scenario")
     runs = []
     for label, d, s in zip(_labels(summaries, dirs), dirs, summaries):
-        mv = pd.read_csv(d / "movements.csv")
-        runs.append(Run(label, d, s, mv, approach_figures(d, s)))
+        try:
+            mv = pd.read_csv(d / "movements.csv")
+            runs.append(Run(label, d, s, mv, approach_figures(d, s)))
+        except (OSError, ValueError, KeyError) as exc:  # (pandas' EmptyDataError and ParserError are ValueErrors)
+            raise CompareError(f"{d}: its tables cannot be read ({type(exc).__name__}: {exc}); run it again") from None
     return runs
 
 

@@ -213,7 +213,13 @@ def test_compare_refuses_unfinished_runs_and_other_scenarios(cross4_pair, corrid
     shutil.copytree(nr, running)
     s = json.loads((running / "summary.json").read_text())
     (running / "summary.json").write_text(json.dumps({**s, "status": "running"}))
+    empty, listed = tmp_path / "empty", tmp_path / "listed"  # an emptied table, a summary that is no object
+    shutil.copytree(nr, empty)
+    (empty / "movements.csv").write_text("")
+    shutil.copytree(nr, listed)
+    (listed / "summary.json").write_text("[1, 2]")
     cases = [([nr, running], "not a finished run"), ([nr, tmp_path], "not a run directory"),
+             ([nr, empty], "its tables cannot be read"), ([nr, listed], "not a run's summary"),
              ([nr, corridor_run], "compare runs of one scenario"), ([nr, nr], "given twice"),
              ([nr], "at least two")]
     for dirs, message in cases:

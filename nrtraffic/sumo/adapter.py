@@ -278,10 +278,12 @@ class SumoSession:
         try:
             with contextlib.redirect_stdout(io.StringIO()):  # (TraCI prints a line per second it waits)
                 traci.init(port, numRetries=self.GUI_CONNECT_TRIES, proc=proc)
-        except Exception as exc:
+        except BaseException as exc:  # (Ctrl-C or SIGTERM while it connects too: sumo-gui is not left running)
             if proc.poll() is None:
                 proc.kill()
             proc.wait()
+            if not isinstance(exc, Exception):
+                raise
             log.seek(0)
             said = log.read().decode(errors="replace").strip()[-1500:]
             raise SumoError(f"sumo-gui stopped before the run could start (exit status {proc.returncode}; {exc})"
