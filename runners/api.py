@@ -333,12 +333,16 @@ def sweep(scenario: str | Path, seeds: Iterable[int] | str, *, grid: Mapping[str
     from runners import sweep as sweep_mod
 
     seeds = sweep_mod.parse_seeds(seeds if isinstance(seeds, str) else ",".join(str(int(s)) for s in seeds))
-    items = [f"{k}={','.join(v if isinstance(v, str) else _toml(v) for v in values)}"
-             for k, values in (grid or {}).items()]
+    points = []  # (not through the text of --grid: a list value, or a string with a comma, is one value)
+    for k, values in (grid or {}).items():
+        values = [values] if isinstance(values, str) or not isinstance(values, Iterable) else list(values)
+        if "." not in str(k) or not values:
+            raise sweep_mod.SweepError(f"grid {k!r}: expected {{'section.key': [value, ...]}}")
+        points.append((str(k), [v if isinstance(v, str) else _toml(v) for v in values]))
     controls = [sweep_mod.NRTRAFFIC] + sweep_mod.parse_baselines(
         baselines if isinstance(baselines, str) else ",".join(baselines))
     out = _out(out, "sweep")
-    sweep_mod.study(Path(scenario), seeds, sweep_mod.parse_grid(items), controls, out, duration_s=duration_s,
+    sweep_mod.study(Path(scenario), seeds, points, controls, out, duration_s=duration_s,
                     overrides=tuple(settings(overrides)), workers=workers, scheduler=scheduler, force=force,
                     progress=progress, allow_outside=allow_outside)
     return Sweep(out)

@@ -117,3 +117,18 @@ def test_api_refuses_a_seed_or_duration_the_command_refuses(tmp_path, kw, named)
     with pytest.raises(ScenarioError, match=re.escape(named)):
         nrtraffic.run(CROSS4, out=tmp_path / "o", **kw)
     assert not (tmp_path / "o").exists()
+
+
+def test_api_sweep_grid_values_are_kept_whole(tmp_path, monkeypatch):
+    """A list value, and a string with a comma, are one grid value each (they were split at their
+    commas into several points)."""
+    from runners import api
+    from runners import sweep as sweep_mod
+
+    seen = {}
+    monkeypatch.setattr(sweep_mod, "study", lambda scenario, seeds, grid, *a, **k: seen.update(grid=grid))
+    monkeypatch.setattr(api, "Sweep", lambda out: out)  # (nothing ran: no tables to read)
+    nrtraffic.sweep(CROSS4, [1], grid={"sumo.extra_args": [["--max-depart-delay", "300"], []],
+                                       "scenario.description": ["a, b"]}, out=tmp_path / "s")
+    assert seen["grid"] == [("sumo.extra_args", ['["--max-depart-delay", "300"]', "[]"]),
+                            ("scenario.description", ["a, b"])]
