@@ -89,7 +89,8 @@ class Demand:
         if rates:
             end = d.end_s if d.end_s > 0 else (self.duration if self.duration > 0 else math.inf)
             if d.max_vehicles == 0 and not math.isfinite(end):
-                raise ValueError("random demand needs demand.max_vehicles, demand.end_s or scenario.duration_s")
+                raise ValueError("random demand needs an end: demand.max_vehicles, demand.end_s, or a run length "
+                                 "(scenario.duration_s, or --duration other than 0)")
             for appr, (rate, names, share) in rates.items():
                 if rate <= 0 or appr not in self.layout.entry_approaches:  # (a corridor's inner approach: shares only)
                     continue

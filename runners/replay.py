@@ -192,6 +192,9 @@ def replay(run_dir: Path, out: Path | None = None, rtol: float = RTOL, atol: flo
         if not (run_dir / f).is_file():
             raise ReplayError(f"{run_dir} is not a complete run directory: {f} is missing")
     recorded = _read_recorded(run_dir)
+    if recorded.get("status") not in ("ok", "gridlock"):
+        raise ReplayError(f"{run_dir} is not a finished run (summary.json status {recorded.get('status')!r}): a run "
+                          "that was stopped or failed cannot be replayed to the same figures; run it again")
     sc = scenario.load(run_dir / "scenario.resolved.toml")
     tmp = None
     if out is not None:

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import hashlib
 import itertools
+import logging
 import json
 import math
 import os
@@ -387,7 +388,8 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
                 client = Client(cluster)
             else:
                 cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                       dashboard_address=":0", memory_limit=0)
+                                       dashboard_address=":0", memory_limit=0,
+                                       silence_logs=logging.CRITICAL)  # (a failed run is a row, not a traceback)
                 client = Client(cluster)
             try:
                 futures = {client.submit(run_job, j.spec(), retries=1, pure=False,

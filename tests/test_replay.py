@@ -117,3 +117,21 @@ def test_replay_never_writes_into_the_run_it_verifies_nor_over_another_run(tmp_p
     assert main(["replay", str(run), "--out", str(kept), "--no-progress"]) == 1  # the edit differs
     assert "difference(s) beyond" in capsys.readouterr().out
     assert (kept / "summary.json").is_file()
+
+
+def test_a_stopped_run_is_not_replayed(tmp_path, capsys):
+    """A run whose summary says failed (stopped by a signal, say) is refused with exit 2 before
+    anything runs: it cannot come out the same (its replay ran to the end and listed 155
+    differences)."""
+    import json
+    import shutil
+
+    from conftest import ROOT
+    from runners.cli import main
+
+    run = tmp_path / "run"
+    shutil.copytree(ROOT / "tests" / "golden" / "cross4", run)
+    s = json.loads((run / "summary.json").read_text())
+    (run / "summary.json").write_text(json.dumps({**s, "status": "failed", "error": "terminated by SIGTERM"}))
+    assert main(["replay", str(run), "--no-progress"]) == 2
+    assert "is not a finished run (summary.json status 'failed')" in capsys.readouterr().err
