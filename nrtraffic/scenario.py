@@ -862,6 +862,8 @@ def load(path: str | Path, overrides: list[str] | tuple[str, ...] = (), allow_ou
     ------
     ScenarioError : with a message naming the file and the offending key.
     """
+    if not isinstance(path, (str, Path)) and not hasattr(path, "__fspath__"):
+        raise ScenarioError(f"scenario {path!r}: give the path of a scenario.toml, or of the folder holding it")
     path = Path(path)
     if path.is_dir():
         path = path / "scenario.toml"

@@ -213,6 +213,10 @@ def settings(overrides) -> list[str]:
         return [overrides]
     if isinstance(overrides, Mapping):
         return [f"{k}={_toml(v)}" for k, v in overrides.items()]
+    if not isinstance(overrides, Iterable):
+        from nrtraffic.scenario import ScenarioError
+
+        raise ScenarioError(f"overrides={overrides!r}: give {{'section.key': value}} or ['section.key=value', ...]")
     return [str(o) for o in overrides]
 
 
