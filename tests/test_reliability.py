@@ -199,6 +199,8 @@ def _scenario_copy(tmp_path, old=None, new=None, extra=""):
     ("", "", '\n[[approaches]]\nname = "x"\nroute = ["N_in", "nowhere"]\nmerge_entry_edge = "N_in"\n',
      "'nowhere' is not in it"),
     ('preset = "paper"', 'preset = "paper"\nlength = 1e6', "", "beyond a road vehicle"),
+    ('preset = "paper"', 'preset = "paper"\nm = 1e300', "", "vehicle parameter m = 1e+300 is outside its physical range"),
+    ('preset = "paper"', 'preset = "paper"\nCaf = 1.0', "", "vehicle parameter Caf = 1 is outside its physical range"),
     ("trajectory_interval_s = 0.5", "trajectory_interval_s = 0.25", "", "whole multiple of sumo.step_length_s"),
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--no-such-option", "1"]', "",
      "no option --no-such-option"),

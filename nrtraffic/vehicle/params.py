@@ -9,6 +9,10 @@ import numpy as np
 
 MAX_LENGTH_M = 25.0  # longest body accepted [m] (a truck and trailer)
 MAX_WIDTH_M = 4.0  # widest body accepted [m]
+# physical ranges of the other parameters (a car to a loaded truck): mass [kg], yaw inertia [kg m^2],
+# axle distances [m], cornering stiffness [N/rad], the low-speed blend [m/s] and its time constant [s]
+RANGES = {"m": (300.0, 60000.0), "Iz": (50.0, 1e6), "lf": (0.3, 10.0), "lr": (0.3, 10.0), "Caf": (1e3, 1e7),
+          "Car": (1e3, 1e7), "v_blend_low": (0.01, 10.0), "v_blend_high": (0.01, 20.0), "tau_kin": (1e-3, 10.0)}
 
 
 @dataclass(frozen=True)
@@ -58,6 +62,10 @@ class BicycleParams:
             val = getattr(self, f.name)
             if not np.isfinite(val) or val <= 0.0:
                 raise ValueError(f"vehicle parameter {f.name} must be a positive number, got {val!r}")
+        for name, (lo, hi) in RANGES.items():
+            if not lo <= getattr(self, name) <= hi:
+                raise ValueError(f"vehicle parameter {name} = {getattr(self, name):g} is outside its physical range "
+                                 f"{lo:g} to {hi:g}")
         if self.length > MAX_LENGTH_M or self.width > MAX_WIDTH_M:
             raise ValueError(f"vehicle parameter length ({self.length:g} m) or width ({self.width:g} m) is beyond a "
                              f"road vehicle's ({MAX_LENGTH_M:g} m x {MAX_WIDTH_M:g} m)")
