@@ -38,8 +38,8 @@ def writable_dir(path: Path) -> None:
         raise OutputError(f"--out {path}: exists and is not a folder")
     odd = sorted({c for c in str(path.absolute()) if c in SUMO_PATH_CHARS})
     if odd:
-        raise OutputError(f"--out {path}: its path holds {' '.join(repr(c) for c in odd)}, which SUMO reads in a file "
-                          "name as a list separator or a host:port; choose a folder without them")
+        raise OutputError(f"--out {path}: its path holds {' '.join(repr(c) for c in odd)}, which SUMO misreads in a "
+                          "file name (a list separator, a host:port, a quote); choose a folder without them")
     try:
         path.mkdir(parents=True, exist_ok=True)
         probe = path / f".write-test-{threading.get_ident()}"
@@ -49,7 +49,7 @@ def writable_dir(path: Path) -> None:
         raise OutputError(f"--out {path}: cannot write there: {exc.strerror or exc}") from None
 
 
-SUMO_PATH_CHARS = ",:"  # in a file name SUMO reads a comma as a list separator, "host:port" as a socket
+SUMO_PATH_CHARS = ",:'\""  # SUMO reads a comma in a file name as a list separator, "host:port" as a socket; quotes fail
 
 
 def slug(name: str) -> str:

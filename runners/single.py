@@ -79,16 +79,21 @@ def check_window(sc: scenario_mod.Scenario, duration_s: float | None) -> None:
 
 def _check_depart_speeds(sc: scenario_mod.Scenario, demand, departures) -> None:
     """No departure faster than the speed limit of its first edge, which SUMO refuses once it
-    runs ("Departure speed ... too high for the departure edge")."""
+    runs ("Departure speed ... too high for the departure edge"), and no ``[[vehicles]]`` placed
+    beyond its end (SUMO moved it to the end without a word)."""
     from nrtraffic.sumo.network import read_net
 
     net = read_net(sc.network_path)
     limit: dict[str, float] = {}
     listed = {v.id for v in sc.vehicles}
-    for vid, route, _, speed, *_ in departures:
+    for vid, route, _, speed, pos, *_ in departures:
         first = demand.route_edges(route)[0]
         if first not in limit:
             limit[first] = net.getEdge(first).getSpeed() if net.hasEdge(first) else float("inf")
+        if vid in listed and net.hasEdge(first) and pos > net.getEdge(first).getLength() + 1e-9:
+            raise scenario_mod.ScenarioError(
+                f"vehicles.{vid}.depart_pos_m = {pos:g} m lies beyond its first edge {first} "
+                f"({net.getEdge(first).getLength():.1f} m long): give a position on it")
         if speed > limit[first] + 1e-9:
             where = (f"vehicles.{vid}.depart_speed_mps" if vid in listed else
                      "its departSpeed in demand.sumo_routes" if sc.demand.sumo_routes else "demand.entry_speed_mps")

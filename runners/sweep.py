@@ -942,17 +942,18 @@ def seed_figure(df: pd.DataFrame, path: Path) -> None:
 
 
 def check_out(out: Path) -> None:
-    """A sweep's ``--out``: a folder it can write (not a file, no ',' or ':' in its path, which SUMO
-    misreads), either empty or an earlier sweep's (it has ``runs/``): a folder of other files is
-    refused, so that a sweep's tables never replace a user's files of the same name."""
-    from runners.api import OutputError, writable_dir
+    """A sweep's ``--out`` (not created here): not a file, nothing in its path that SUMO misreads,
+    and either empty or an earlier sweep's (it has ``runs/``): a folder of other files is refused, so
+    that a sweep's tables never replace a user's files of the same name."""
+    from runners.api import SUMO_PATH_CHARS
 
-    existed = out.is_dir()
-    try:
-        writable_dir(out)
-    except OutputError as exc:
-        raise SweepError(str(exc)) from None
-    if existed and not (out / "runs").is_dir() and any(p.name != "jobs" for p in out.iterdir()):
+    if out.exists() and not out.is_dir():
+        raise SweepError(f"--out {out}: exists and is not a folder")
+    odd = sorted({c for c in str(out.absolute()) if c in SUMO_PATH_CHARS})
+    if odd:
+        raise SweepError(f"--out {out}: its path holds {' '.join(repr(c) for c in odd)}, which SUMO misreads in a "
+                         "file name (a list separator, a host:port, a quote); choose a folder without them")
+    if out.is_dir() and not (out / "runs").is_dir() and any(p.name != "jobs" for p in out.iterdir()):
         raise SweepError(f"--out {out} holds files and no earlier sweep (no runs/ folder): choose an empty folder, "
                          "or the folder of the sweep to resume")
 
@@ -973,6 +974,12 @@ def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]
                          "run them all")
     check_out(Path(out))
     jobs = plan(scenario_path, seeds, grid, controls, out, duration_s, tuple(overrides), allow_outside=allow_outside)
+    from runners.api import OutputError, writable_dir
+
+    try:
+        writable_dir(Path(out))  # (created only now: a sweep refused above leaves nothing)
+    except OutputError as exc:
+        raise SweepError(str(exc)) from None
     check_resume(jobs, force=force)
     remove_stale(out)
     return run_sweep(jobs, out, workers=workers, scheduler=scheduler, progress=progress, batch=batch)

@@ -200,6 +200,8 @@ def _scenario_copy(tmp_path, old=None, new=None, extra=""):
      "'nowhere' is not in it"),
     ('preset = "paper"', 'preset = "paper"\nlength = 1e6', "", "beyond a road vehicle"),
     ('preset = "paper"', 'preset = "paper"\nm = 1e300', "", "vehicle parameter m = 1e+300 is outside its physical range"),
+    ("", "", '\n[[vehicles]]\nid = "far"\napproach = "N_in.straight"\ndepart_s = 1.0\ndepart_pos_m = 99999.0\n',
+     "vehicles.far.depart_pos_m = 99999 m lies beyond its first edge N_in"),
     ('preset = "paper"', 'preset = "paper"\nCaf = 1.0', "", "vehicle parameter Caf = 1 is outside its physical range"),
     ("trajectory_interval_s = 0.5", "trajectory_interval_s = 0.25", "", "whole multiple of sumo.step_length_s"),
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--no-such-option", "1"]', "",
@@ -561,3 +563,26 @@ def test_a_trajectory_step_cut_short_by_an_interrupt_is_dropped_and_the_file_sta
     w.close()  # (a second close, as a failure's clean-up may do, keeps the file)
     t = pq.read_table(tmp_path / "trajectories.parquet").to_pandas()
     assert t["t"].tolist() == [0.0, 0.5, 1.0] and (t["vehicle_id"] == "a").all()
+
+
+@pytest.mark.parametrize("name", ["with,comma", "col:on", "q'uote"])
+def test_an_out_path_sumo_would_misread_is_refused(tmp_path, capsys, name):
+    """SUMO reads a comma in a file name as a list separator and host:port as a socket; a quote
+    failed it too: exit 2 before anything is written, for a run and for a sweep."""
+    out = tmp_path / name
+    flags = ["--duration", "5", "--set", "outputs.warmup_s=0", "--no-progress"]
+    assert main(["run", str(CROSS4), "--out", str(out), *flags]) == 2
+    assert "which SUMO misreads in a file name" in capsys.readouterr().err
+    assert main(["sweep", str(CROSS4), "--seeds", "1", "--out", str(out), *flags]) == 2
+    assert "which SUMO misreads in a file name" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_a_sweep_does_not_write_into_a_folder_of_the_users_files(tmp_path, capsys):
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "sweep.csv").write_text("my own table\n")
+    assert main(["sweep", str(CROSS4), "--seeds", "1", "--out", str(out), "--duration", "5", "--set",
+                 "outputs.warmup_s=0", "--no-progress"]) == 2
+    assert "holds files and no earlier sweep" in capsys.readouterr().err
+    assert (out / "sweep.csv").read_text() == "my own table\n" and sorted(p.name for p in out.iterdir()) == ["sweep.csv"]
