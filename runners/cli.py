@@ -186,7 +186,10 @@ def _add_compare(sub) -> None:
     p.add_argument("run_dirs", type=Path, nargs="+", metavar="RUN_DIR",
                    help="run directories written by run or baseline (or a sweep's runs), two or more")
     p.add_argument("--out", type=Path, default=None, metavar="DIR",
-                   help="where to write the report (default: runs/<scenario>-compare)")
+                   help="where to write the report (default: runs/<scenario>-compare); an empty or new folder")
+    p.add_argument("--force", action="store_true",
+                   help="replace the comparison's own files (compare.html, compare_*.csv) in a folder that holds "
+                        "them; nothing else in it is touched")
 
 
 def _add_bench(sub) -> None:

@@ -6,6 +6,9 @@ import sys
 from pathlib import Path
 
 
+OUTPUTS = ("compare.html", "compare_runs.csv", "compare_movements.csv", "compare_approaches.csv")
+
+
 def main(args) -> int:
     """Compare ``args.run_dirs``; write the report into ``args.out`` (default
     ``runs/<scenario>-compare``) and print it. Exit status 2, with the reason, when the run
@@ -18,6 +21,10 @@ def main(args) -> int:
         out = args.out or Path("runs") / f"{slug(c.scenario)}-compare"
         if (Path(out) / "summary.json").is_file():
             raise OutputError(f"--out {out}: a run directory; write the comparison into another folder")
+        ours = [n for n in OUTPUTS if (Path(out) / n).exists()]
+        if ours and not args.force:
+            raise OutputError(f"--out {out} already holds {', '.join(ours)}: choose another folder, or --force to "
+                              "replace them (nothing else in it is touched)")
         writable_dir(out)
         paths = write(c, out)
     except (CompareError, OutputError) as exc:
