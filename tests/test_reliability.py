@@ -234,6 +234,8 @@ def _scenario_copy(tmp_path, old=None, new=None, extra=""):
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--seed", "5"]', "", "--seed: the run sets it itself"),
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--remote-port", "9999"]', "",
      "SUMO would wait for a TraCI client of its own"),
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--device.toc.probability", "1"]', "",
+     "SUMO's take-over device needs parameters of the vehicle type"),
 ])
 def test_scenarios_that_would_run_wrong_exit_2_naming_the_problem(old, new, extra, message, tmp_path, capsys):
     d = _scenario_copy(tmp_path, old or None, new or None, extra)

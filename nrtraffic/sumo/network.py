@@ -288,6 +288,9 @@ def check_sumo_args(args: tuple[str, ...]) -> None:
         if n in RUN_SETS:
             raise NetworkError(f"sumo.extra_args: {a if a.startswith('--') else f'{a} (--{n})'}: the run sets it "
                                f"itself ({RUN_SETS[n]}); leave it out")
+        if n.startswith("device.toc."):
+            raise NetworkError(f"sumo.extra_args: {a}: SUMO's take-over device needs parameters of the vehicle type "
+                               "that nrtraffic's vehicles do not carry (SUMO stops at its start); leave it out")
         if n in ("remote-port", "num-clients"):
             raise NetworkError(f"sumo.extra_args: {a}: SUMO would wait for a TraCI client of its own and the run "
                                "would never start; leave it out")
