@@ -30,9 +30,8 @@ class OutputError(ValueError):
     """The output folder cannot be used."""
 
 
-def writable_dir(path: Path) -> None:
-    """Refuse (exit 2) an output folder that is a file or cannot be created or written, before
-    anything runs."""
+def usable_path(path: Path) -> None:
+    """Refuse (exit 2) an output folder that is a file, or whose path SUMO would misread."""
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise OutputError(f"--out {path}: exists and is not a folder")
@@ -40,6 +39,13 @@ def writable_dir(path: Path) -> None:
     if odd:
         raise OutputError(f"--out {path}: its path holds {' '.join(repr(c) for c in odd)}, which SUMO misreads in a "
                           "file name (a list separator, a host:port, a quote); choose a folder without them")
+
+
+def writable_dir(path: Path) -> None:
+    """Refuse (exit 2) an output folder that is a file, has a path SUMO misreads (:func:`usable_path`)
+    or cannot be created or written, before anything runs."""
+    path = Path(path)
+    usable_path(path)
     try:
         path.mkdir(parents=True, exist_ok=True)
         probe = path / f".write-test-{threading.get_ident()}"

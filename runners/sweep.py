@@ -945,14 +945,12 @@ def check_out(out: Path) -> None:
     """A sweep's ``--out`` (not created here): not a file, nothing in its path that SUMO misreads,
     and either empty or an earlier sweep's (it has ``runs/``): a folder of other files is refused, so
     that a sweep's tables never replace a user's files of the same name."""
-    from runners.api import SUMO_PATH_CHARS
+    from runners.api import OutputError, usable_path
 
-    if out.exists() and not out.is_dir():
-        raise SweepError(f"--out {out}: exists and is not a folder")
-    odd = sorted({c for c in str(out.absolute()) if c in SUMO_PATH_CHARS})
-    if odd:
-        raise SweepError(f"--out {out}: its path holds {' '.join(repr(c) for c in odd)}, which SUMO misreads in a "
-                         "file name (a list separator, a host:port, a quote); choose a folder without them")
+    try:
+        usable_path(out)
+    except OutputError as exc:
+        raise SweepError(str(exc)) from None
     if out.is_dir() and not (out / "runs").is_dir() and any(p.name != "jobs" for p in out.iterdir()):
         raise SweepError(f"--out {out} holds files and no earlier sweep (no runs/ folder): choose an empty folder, "
                          "or the folder of the sweep to resume")
