@@ -316,6 +316,10 @@ def _main(argv: list[str] | None) -> int:
     _add_compare(sub)
     _add_bench(sub)
     _add_schema(sub)
+    given, argv = list(sys.argv[1:] if argv is None else argv), []
+    while given:  # (--seeds -1:0 would be taken for an option: it is checked as a range instead)
+        a = given.pop(0)
+        argv.append(f"--seeds={given.pop(0)}" if a == "--seeds" and given and given[0].startswith("-") else a)
     args = parser.parse_args(argv)
     if args.command not in ("run", "baseline"):
         interrupts.arm()  # (a run arms once its run directory says "running")

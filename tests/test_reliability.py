@@ -409,6 +409,8 @@ def test_sweep_flags_and_demand_are_checked_before_any_worker_starts(tmp_path, c
     run starts, naming the flag or the key (a negative seed failed inside a Dask worker)."""
     assert main(["sweep", str(CROSS4), "--seeds=-1:0", "--out", str(tmp_path / "a"), "--no-progress"]) == 2
     assert "seeds are 0 to 2^31 - 1" in capsys.readouterr().err
+    assert main(["sweep", str(CROSS4), "--seeds", "-1:0", "--out", str(tmp_path / "a"), "--no-progress"]) == 2
+    assert "seeds are 0 to 2^31 - 1" in capsys.readouterr().err  # (not taken for an option)
     d = copy_scenario("cross4", tmp_path / "cross4")
     counts = d / "counts.toml"
     counts.write_text(counts.read_text().replace('approach = "E_in"', 'approach = "Q_in"', 1))
