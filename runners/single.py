@@ -43,6 +43,13 @@ def check_demand(sc: scenario_mod.Scenario, seed: int | None, duration_s: float 
     try:
         demand = Demand.of(sc, seed, duration_s)
         departures = demand.departures()
+        if not departures:  # (a run of no vehicle would do nothing, and say ok)
+            d = sc.demand
+            where = (f"demand.sumo_routes has no departure from scenario.begin_s = {sc.general.begin_s:g} s on"
+                     if d.sumo_routes else
+                     f"demand.begin_s = {d.begin_s:g} s, demand.end_s = {d.end_s:g} s, its rates and counts give none")
+            raise scenario_mod.ScenarioError(f"the demand gives the run no vehicle ({where}): check the demand, "
+                                             "and the run's length (--duration, scenario.duration_s)")
         _check_depart_speeds(sc, demand, departures)
         check_window(sc, duration_s)  # (last: what is wrong in the scenario itself is said first)
         return len(departures)

@@ -590,3 +590,16 @@ def test_a_sweep_does_not_write_into_a_folder_of_the_users_files(tmp_path, capsy
                  "outputs.warmup_s=0", "--no-progress"]) == 2
     assert "holds files and no earlier sweep" in capsys.readouterr().err
     assert (out / "sweep.csv").read_text() == "my own table\n" and sorted(p.name for p in out.iterdir()) == ["sweep.csv"]
+
+
+@pytest.mark.parametrize("flags", [["--set", "demand.begin_s=100", "--set", "demand.end_s=10"],
+                                   ["--set", "scenario.begin_s=100000"]])
+def test_a_demand_that_gives_the_run_no_vehicle_is_refused(tmp_path, capsys, flags):
+    """An empty demand (arrivals that end before they begin; a route file all of whose departures
+    come before the run's start) is exit 2 before SUMO starts: the run would do nothing and say ok."""
+    scenario = CROSS4 if "demand.begin_s=100" in flags else ROOT / "sumo_scenarios" / "tee3" / "routes.toml"
+    out = tmp_path / "o"
+    assert main(["run", str(scenario), "--out", str(out), "--duration", "60", "--set", "outputs.warmup_s=0",
+                 "--no-progress", *flags]) == 2
+    assert "the demand gives the run no vehicle" in capsys.readouterr().err
+    assert not (out / "summary.json").exists()
