@@ -177,6 +177,19 @@ def _tree(out: Path) -> set[str]:
     return {p.relative_to(out).as_posix() for p in out.rglob("*")}
 
 
+def read_manifest(out: Path) -> dict | None:
+    """``out``'s manifest when it is a run's (a JSON object whose ``preexisting`` and ``created`` are
+    lists of paths), else None (a file of that name of the user's own, or a damaged one)."""
+    try:
+        m = json.loads((Path(out) / MANIFEST).read_text())
+    except (OSError, ValueError):
+        return None
+    if not (isinstance(m, dict) and set(m) == {"preexisting", "created"}
+            and all(isinstance(v, list) and all(isinstance(x, str) for x in v) for v in m.values())):
+        return None
+    return m
+
+
 def begin_manifest(out: Path) -> None:
     """Start ``out``'s manifest: what is there before the run (none of it is the run's)."""
     out = Path(out)
@@ -188,9 +201,8 @@ def update_manifest(out: Path) -> None:
     """Record in ``out``'s manifest every file and folder the run has created so far (all that is
     there now and was not before it); called with every checkpoint and at the end."""
     out = Path(out)
-    try:
-        m = json.loads((out / MANIFEST).read_text())
-    except (OSError, ValueError):
+    m = read_manifest(out)
+    if m is None:
         return
     pre = set(m.get("preexisting", []))
     m["created"] = sorted((_tree(out) - pre - {MANIFEST}) | set(m.get("created", [])))
@@ -222,7 +234,7 @@ def claim_run_dir(out: Path, sc: scenario_mod.Scenario, seed: int | None, durati
     if not (same or force):
         raise ValueError(f"--out {out} is not empty and is not a finished run of this configuration: "
                          "choose another folder, or --force to replace the run in it")
-    if not same and not (out / MANIFEST).is_file():
+    if not same and read_manifest(out) is None:
         raise ValueError(f"--out {out} is not empty and holds no run's {MANIFEST} (files of your own, or a run of "
                          "an earlier version): --force removes only what a run recorded there; choose another "
                          "folder, or empty this one yourself")
@@ -234,15 +246,19 @@ def remove_run_files(out: Path, keep: Path | None = None) -> None:
     it created once they are empty), and the manifest; nothing else. Without a manifest (a finished
     run of an earlier version): the files such a run wrote at the top of ``out``
     (:data:`RUN_FILES`), never anything in ``sumo/``. ``keep`` (the scenario's own network, where
-    ``out`` is its folder) always stays."""
+    ``out`` is its folder) always stays, and so does anything outside ``out`` (a listed path with
+    ``..`` or absolute, or reached through a link) or listed as there before the run."""
     out = Path(out)
-    try:
-        created = json.loads((out / MANIFEST).read_text()).get("created", [])
-    except (OSError, ValueError):
-        created = list(RUN_FILES)
+    m = read_manifest(out)
+    created, pre = (m["created"], set(m["preexisting"])) if m is not None else (list(RUN_FILES), set())
     kept = Path(keep).resolve() if keep is not None else None
+    inside = out.resolve()
     for rel in sorted(created, key=lambda r: r.count("/"), reverse=True):  # deepest first
         p = out / rel
+        if rel in pre or Path(rel).is_absolute() or ".." in Path(rel).parts:
+            continue  # (never what was there before, nor anything outside the folder)
+        if not p.parent.resolve().is_relative_to(inside):
+            continue  # (a folder of the run replaced by a link to elsewhere: what is there is not the run's)
         if kept is not None and p.exists() and p.resolve() == kept:
             continue
         if p.is_symlink() or p.is_file():

@@ -603,3 +603,33 @@ def test_a_demand_that_gives_the_run_no_vehicle_is_refused(tmp_path, capsys, fla
                  "--no-progress", *flags]) == 2
     assert "the demand gives the run no vehicle" in capsys.readouterr().err
     assert not (out / "summary.json").exists()
+
+
+def test_force_never_removes_anything_outside_the_run_folder(tmp_path, capsys):
+    """--force on an earlier run whose sumo/ was replaced by a link to the user's folder, and whose
+    manifest lists '../' and absolute paths: the user's files stay. A folder whose manifest.json is
+    not a run's (a web app's, say) is refused even with --force."""
+    base = ["run", str(CROSS4), "--duration", "5", "--set", "outputs.warmup_s=0", "--no-progress"]
+    user = tmp_path / "user"
+    user.mkdir()
+    for name in ("net.net.xml", "routes.rou.xml", "victim.txt"):
+        (user / name).write_text("mine")
+    r = tmp_path / "r"
+    assert main(base + ["--out", str(r)]) == 0
+    import shutil
+
+    shutil.rmtree(r / "sumo")
+    (r / "sumo").symlink_to(user, target_is_directory=True)
+    m = json.loads((r / "manifest.json").read_text())
+    m["created"] += ["../user/victim.txt", str(user / "victim.txt")]
+    (r / "manifest.json").write_text(json.dumps(m))
+    assert main(base + ["--out", str(r), "--seed", "2", "--force"]) == 0
+    assert sorted(p.name for p in user.iterdir()) == ["net.net.xml", "routes.rou.xml", "victim.txt"]
+    app = tmp_path / "app"
+    app.mkdir()
+    (app / "manifest.json").write_text('{"name": "my web app"}')
+    (app / "index.html").write_text("mine")
+    capsys.readouterr()
+    assert main(base + ["--out", str(app), "--force"]) == 2
+    assert "holds no run's manifest.json" in capsys.readouterr().err
+    assert (app / "manifest.json").read_text() == '{"name": "my web app"}'
