@@ -87,8 +87,26 @@ def write_report(out: Path) -> None:
 
     try:
         run_report(out)
+    except OSError as exc:  # (a full disk): the run is not done until its report is written
+        _mark_failed(out, f"the run finished, but its report could not be written: {exc.strerror or exc}")
+        raise
     finally:
-        update_manifest(out)
+        try:
+            update_manifest(out)
+        except OSError:
+            pass  # (a full disk: the manifest keeps what it had)
+
+
+def _mark_failed(out: Path, why: str) -> None:
+    """summary.json says failed and why (written in the space the earlier one holds, on a full disk)."""
+    from nrtraffic.results import write_summary
+
+    try:
+        s = json.loads((Path(out) / "summary.json").read_text())
+        s["status"], s["error"] = "failed", why
+        write_summary(Path(out) / "summary.json", s)
+    except (OSError, ValueError):
+        pass
 
 
 # ------------------------------------------------------------------ results

@@ -118,12 +118,13 @@ def prepare_run_dir(sc: scenario_mod.Scenario, out: Path) -> Path:
     begin_manifest(out)
     (out / "sumo").mkdir(exist_ok=True)
     net = sc.network_path
-    dst = out / "sumo" / net.name
-    if net.resolve() != dst.resolve():
-        shutil.copyfile(net, dst)
-    for src, name in route_copies(sc):
-        if src.resolve() != (out / name).resolve():
-            shutil.copyfile(src, out / name)
+    copies = [(net, out / "sumo" / net.name)] + [(src, out / name) for src, name in route_copies(sc)]
+    for src, dst in copies:
+        if src.resolve() != dst.resolve():
+            try:
+                shutil.copyfile(src, dst)
+            except OSError as exc:  # (named as the copy it is, not as the user's file it reads)
+                raise OSError(exc.errno, exc.strerror, str(dst)) from None
     return out
 
 

@@ -346,6 +346,10 @@ _ROUTE_CASES = {
                        "duarouter could not route its trips: Error: Invalid repetition rate in the definition of flow 'x'"),
     "no_vehicles": ('<route id="r" edges="W_in E_out"/>', "holds no <vehicle>, <trip> or <flow>"),
     "malformed": ('<flow id="x" from="W_in"', "cannot be read as XML"),
+    "huge_flow": ('<flow id="x" from="W_in" to="E_out" begin="0" end="100" number="1000000000"/>',
+                  "more than the 1000000 vehicles one flow may have"),
+    "huge_flow_route": ('<flow id="x" route="r" begin="0" end="100" number="1000000000"/><route id="r" edges="W_in E_out"/>',
+                        "number=1000000000 is more than the 1000000 vehicles one flow may have"),
     "unknown_edges": ('<trip id="x" depart="1" from="W_in" to="Nowhere_out"/>', "The edge 'Nowhere_out' within the route for trip 'x' is not known"),
     "no_movement": ('<vehicle id="x" depart="1"><route edges="W_in"/></vehicle>', "uses no movement of the junction"),
 }
@@ -633,3 +637,19 @@ def test_force_never_removes_anything_outside_the_run_folder(tmp_path, capsys):
     assert main(base + ["--out", str(app), "--force"]) == 2
     assert "holds no run's manifest.json" in capsys.readouterr().err
     assert (app / "manifest.json").read_text() == '{"name": "my web app"}'
+
+
+def test_a_disk_that_fills_while_the_report_is_written_says_failed(tmp_path, monkeypatch, capsys):
+    """The run's tables are written, then the disk is full for its figures: exit 1 with one line,
+    and summary.json says failed and why (it said ok)."""
+    from nrtraffic import report
+
+    def full(run_dir):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(report, "run_report", full)
+    out = tmp_path / "run"
+    code = main(["run", str(CROSS4), "--duration", "30", "--set", "outputs.warmup_s=0", "--out", str(out), "--no-progress"])
+    assert code == 1 and "No space left on device" in capsys.readouterr().err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "failed" and "its report could not be written" in s["error"]

@@ -47,6 +47,7 @@ DEPART_LANES = ("random", "free", "allowed", "best", "best_prob", "first")  # SU
 # SUMO's departSpeed words (read as the run's entry speed) and departPos words (read as SUMO's base)
 DEPART_SPEEDS = ("random", "max", "desired", "speedLimit", "last", "avg")
 DEPART_POSITIONS = ("random", "free", "random_free", "base", "last", "stop", "splitFront")
+MAX_FLOW_VEHICLES = 1_000_000  # vehicles of one <flow> given by number
 _ROUTED: dict[tuple, Path] = {}  # (file, its version, network) -> the file routed by duarouter, once per process
 _TMP: list = []  # the process's folder for routed and merged files, removed when the process ends
 
@@ -100,6 +101,14 @@ def routed(path: Path, net_path: Path) -> Path:
         raise DemandFileError(f"demand.sumo_routes {path}: cannot be read as XML: {exc}") from None
     if not _unrouted(root):
         return path
+    for el in root.iter("flow"):  # (duarouter writes every vehicle of a flow it routes: bounded first)
+        try:
+            n = float(el.get("number", "0"))
+        except ValueError:
+            continue
+        if n > MAX_FLOW_VEHICLES:
+            raise DemandFileError(f"demand.sumo_routes {path.name}: <flow id={el.get('id')!r}> has number={n:g}, more "
+                                  f"than the {MAX_FLOW_VEHICLES} vehicles one flow may have")
     st = path.stat()
     key = (str(path.resolve()), st.st_mtime_ns, st.st_size, str(net_path.resolve()), net_path.stat().st_mtime_ns)
     if key in _ROUTED and _ROUTED[key].is_file():
@@ -112,6 +121,10 @@ def routed(path: Path, net_path: Path) -> Path:
     except (OSError, subprocess.TimeoutExpired) as exc:
         raise DemandFileError(f"demand.sumo_routes {path.name}: SUMO's duarouter could not be run to route its "
                               f"trips: {exc}") from None
+    if proc.returncode < 0:
+        raise DemandFileError(f"demand.sumo_routes {path.name}: SUMO's duarouter was stopped by signal "
+                              f"{-proc.returncode} while routing its trips (out of memory? a flow with very many "
+                              "vehicles)")
     if proc.returncode != 0 or not out.is_file():
         said = [ln.strip() for ln in (proc.stderr or proc.stdout).splitlines()
                 if ln.strip() and not ln.startswith("Quitting")]
@@ -235,6 +248,9 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
         times: list[float] = []
         if el.get("number") is not None and el.get("period") is None and el.get("vehsPerHour") is None:
             n = int(_num(el, "number", where))
+            if n > MAX_FLOW_VEHICLES:
+                raise DemandFileError(f"{where}: number={n} is more than the {MAX_FLOW_VEHICLES} vehicles one flow may "
+                                      "have")
             if not math.isfinite(end):
                 raise DemandFileError(f"{where}: number needs a finite end")
             times = [begin + k * (end - begin) / n for k in range(n)] if n > 0 else []
