@@ -196,6 +196,10 @@ def replay(run_dir: Path, out: Path | None = None, rtol: float = RTOL, atol: flo
         raise ReplayError(f"{run_dir} is not a finished run (summary.json status {recorded.get('status')!r}): a run "
                           "that was stopped or failed cannot be replayed to the same figures; run it again")
     sc = scenario.load(run_dir / "scenario.resolved.toml")
+    from runners.single import check, check_demand
+
+    check(sc)  # (its network and demand as the run will build them: a damaged copy is said before anything runs)
+    check_demand(sc, None, None)
     tmp = None
     if out is not None:
         from runners.single import claim_run_dir
@@ -235,7 +239,7 @@ def main(args) -> int:
     if not diffs:
         print(f"replay of {args.run_dir}: matches (rtol {args.rtol:g}, atol {args.atol:g})")
         return 0
-    print(f"replay of {args.run_dir}: {len(diffs)} difference(s) beyond rtol {args.rtol:g}, atol {args.atol:g}:")
+    print(f"replay of {args.run_dir}: differs, {len(diffs)} difference(s) beyond rtol {args.rtol:g}, atol {args.atol:g}:")
     for d in diffs[:40]:
         print(f"  {d}")
     if len(diffs) > 40:

@@ -129,8 +129,7 @@ def routed(path: Path, net_path: Path) -> Path:
         said = [ln.strip() for ln in (proc.stderr or proc.stdout).splitlines()
                 if ln.strip() and not ln.startswith("Quitting")]
         raise DemandFileError(f"demand.sumo_routes {path.name}: SUMO's duarouter could not route its trips: "
-                              f"{'; '.join(said[-3:]) or f'exit {proc.returncode}'} (mend the element it names: "
-                              "a trip needs a from and a to that some route connects)")
+                              f"{'; '.join(said[-3:]) or f'exit {proc.returncode}'} (mend the element it names)")
     _ROUTED[key] = out
     return out
 
