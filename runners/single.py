@@ -43,11 +43,14 @@ def check_demand(sc: scenario_mod.Scenario, seed: int | None, duration_s: float 
     try:
         demand = Demand.of(sc, seed, duration_s)
         departures = demand.departures()
-        if not departures:  # (a run of no vehicle would do nothing, and say ok)
+        d_run = float(sc.general.duration_s if duration_s is None else duration_s)
+        if not [v for v in departures if d_run <= 0 or v[2] < d_run]:  # (a run of no vehicle would do nothing, and say ok)
             d = sc.demand
             where = (f"demand.sumo_routes has no departure from scenario.begin_s = {sc.general.begin_s:g} s on"
                      if d.sumo_routes else
                      f"demand.begin_s = {d.begin_s:g} s, demand.end_s = {d.end_s:g} s, its rates and counts give none")
+            if departures:
+                where = f"its first departure is at {min(v[2] for v in departures):g} s, after the run's {d_run:g} s"
             raise scenario_mod.ScenarioError(f"the demand gives the run no vehicle ({where}): check the demand, "
                                              "and the run's length (--duration, scenario.duration_s)")
         _check_depart_speeds(sc, demand, departures)
@@ -232,13 +235,21 @@ def claim_run_dir(out: Path, sc: scenario_mod.Scenario, seed: int | None, durati
                 and (out / "scenario.resolved.toml").read_text() == resolved_text(sc, seed, duration_s))
     except (OSError, ValueError):
         pass
+    m = read_manifest(out)
     if not (same or force):
         raise ValueError(f"--out {out} is not empty and is not a finished run of this configuration: "
                          "choose another folder, or --force to replace the run in it")
-    if not same and read_manifest(out) is None:
+    if m is None:
         raise ValueError(f"--out {out} is not empty and holds no run's {MANIFEST} (files of your own, or a run of "
                          "an earlier version): --force removes only what a run recorded there; choose another "
                          "folder, or empty this one yourself")
+    # what the new run writes must not meet a file that no earlier run there created (the user's)
+    names = [*RUN_FILES, "sumo/routes.rou.xml", "sumo/run.sumocfg", "sumo/queues.add.xml",
+             f"sumo/{sc.network_path.name}", *(name for _, name in route_copies(sc))]
+    clash = sorted(n for n in names if (out / n).exists() and n not in set(m["created"]))
+    if clash:
+        raise ValueError(f"--out {out} holds {', '.join(clash)}, which no earlier run there created (files of your "
+                         "own?): a run would write over them; choose another folder")
     remove_run_files(out, keep=sc.network_path)
 
 

@@ -436,12 +436,12 @@ def test_deeply_nested_toml_is_refused_with_exit_2(value, tmp_path, capsys):
 
 
 def test_runs_that_did_not_do_their_job_say_so(tmp_path):
-    """A run with no vehicle, and one whose tracker barely tracks (alpha 1e-3 instead of 100: the
-    car falls tens of metres behind its plan), finish with a warning in summary.json."""
+    """A run with no vehicle is refused before SUMO starts (it said ok, with a warning); one whose
+    tracker barely tracks (alpha 1e-3 instead of 100: the car falls tens of metres behind its plan)
+    finishes with a warning in summary.json."""
     assert main(["run", str(CROSS4), "--duration", "5", "--set", "outputs.warmup_s=0", "--set", "demand.rate_veh_h=0", "--set",
-                 "demand.mean_headway_s=0", "--out", str(tmp_path / "none"), "--no-progress"]) == 0
-    s = json.loads((tmp_path / "none" / "summary.json").read_text())
-    assert s["vehicles_spawned"] == 0 and any("no vehicle" in w for w in s["warnings"])
+                 "demand.mean_headway_s=0", "--out", str(tmp_path / "none"), "--no-progress"]) == 2
+    assert not (tmp_path / "none" / "summary.json").exists()
     paper = SCENARIOS / "paper_curved" / "scenario.toml"
     assert main(["run", str(paper), "--duration", "30", "--set", "controller.alpha=0.001", "--out",
                  str(tmp_path / "slack"), "--no-progress"]) == 0
@@ -653,3 +653,27 @@ def test_a_disk_that_fills_while_the_report_is_written_says_failed(tmp_path, mon
     assert code == 1 and "No space left on device" in capsys.readouterr().err
     s = json.loads((out / "summary.json").read_text())
     assert s["status"] == "failed" and "its report could not be written" in s["error"]
+
+
+def test_force_does_not_write_over_files_no_earlier_run_created(tmp_path, capsys):
+    """A folder that looks like a finished run (its summary.json and scenario.resolved.toml copied
+    in) but holds the user's vehicles.csv and no manifest; and one whose manifest lists the user's
+    files as there before: refused, with or without --force, and the user's files stay."""
+    import shutil
+
+    base = ["run", str(CROSS4), "--duration", "5", "--set", "outputs.warmup_s=0", "--no-progress"]
+    first = tmp_path / "first"
+    assert main(base + ["--out", str(first)]) == 0
+    for case, manifest in (("none", None), ("listed", {"created": ["summary.json", "scenario.resolved.toml"],
+                                                       "preexisting": ["vehicles.csv"]})):
+        o = tmp_path / case
+        o.mkdir()
+        for f in ("summary.json", "scenario.resolved.toml"):
+            shutil.copy(first / f, o / f)
+        (o / "vehicles.csv").write_text("mine\n")
+        if manifest is not None:
+            (o / "manifest.json").write_text(json.dumps(manifest))
+        for force in ([], ["--force"]):
+            capsys.readouterr()
+            assert main(base + ["--out", str(o), *force]) == 2, (case, force)
+            assert (o / "vehicles.csv").read_text() == "mine\n"
