@@ -4,6 +4,7 @@ and the demand of a window (no SUMO run; :meth:`Demand.write` writes SUMO's rout
 from __future__ import annotations
 
 import math
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -103,11 +104,8 @@ class Demand:
             if mv not in self.movement_table:
                 raise ValueError(f"vehicle {v.id}: {mv!r} is not a movement ({', '.join(self.movement_table)})")
             veh.append((v.id, mv, v.depart_s, v.depart_speed_mps, v.depart_pos_m))
-        ids = [v[0] for v in veh]
-        if len(set(ids)) != len(ids):
-            seen, twice = set(), []
-            for i in ids:
-                (twice.append(i) if i in seen else seen.add(i))
+        twice = [i for i, n in Counter(v[0] for v in veh).items() if n > 1]
+        if twice:
             raise ValueError(f"vehicle id {twice[0]!r} is given twice ([[vehicles]] and the generated or file demand "
                              "name vehicles <approach>.<k> and by the file's ids): give the [[vehicles]] another id")
         veh.sort(key=lambda v: v[2])
@@ -218,19 +216,23 @@ class Demand:
         from the start of the road that feeds its first approach (``Layout.feeders``)."""
         if route in self.file_routes:
             return self.file_routes[route]
-        legs = self.itineraries.get(route, (route,))
+        legs = self.legs(route)
         edges = [*self.layout.feeders.get(legs[0], ()), *self.movement_table[legs[0]][2]]
         for leg in legs[1:]:
             edges += list(self.movement_table[leg][2][1:])
         return tuple(edges)
 
+    def legs(self, route: str) -> tuple[str, ...]:
+        """The turning movements a demand route takes, in order (one, off a corridor)."""
+        return self.itineraries.get(route, (route,))
+
     def used_movements(self) -> set[str]:
         """The turning movements some departure takes."""
-        return {leg for _, route, *_ in self.departures() for leg in self.itineraries.get(route, (route,))}
+        return {leg for _, route, *_ in self.departures() for leg in self.legs(route)}
 
     def first_approach(self, route: str) -> str:
         """The approach of the first junction a demand route enters."""
-        return self.movement_table[self.itineraries.get(route, (route,))[0]][0]
+        return self.movement_table[self.legs(route)[0]][0]
 
     def _uncontrolled_hint(self, edges: list[str]) -> str:
         """Where ``edges`` lead into junctions of the network that the scenario does not control,

@@ -481,7 +481,7 @@ class Engine:
         if self.admission is None or self.st is None:
             return []
         where = self.layout.movement_junction
-        return [(t, where.get(self.st.itineraries.get(trip, (trip,))[0], ""))
+        return [(t, where.get(self.demand.legs(trip)[0], ""))
                 for trip, t, _ in self.admission.scheduled.values()]
 
     def _zone_crossing_s(self) -> float:

@@ -44,7 +44,7 @@ def check_demand(sc: scenario_mod.Scenario, seed: int | None, duration_s: float 
         demand = Demand.of(sc, seed, duration_s)
         departures = demand.departures()
         d_run = float(sc.general.duration_s if duration_s is None else duration_s)
-        if not [v for v in departures if d_run <= 0 or v[2] < d_run]:  # (a run of no vehicle would do nothing, and say ok)
+        if not any(d_run <= 0 or v[2] < d_run for v in departures):  # (a run of no vehicle: nothing done, "ok")
             d = sc.demand
             where = (f"demand.sumo_routes has no departure from scenario.begin_s = {sc.general.begin_s:g} s on"
                      if d.sumo_routes else
@@ -96,8 +96,9 @@ def _check_depart_speeds(sc: scenario_mod.Scenario, demand, departures) -> None:
     net = read_net(sc.network_path)
     limit: dict[str, float] = {}
     listed = {v.id for v in sc.vehicles}
+    firsts: dict[str, str] = {}  # route -> its first edge (a route is shared by many vehicles)
     for vid, route, _, speed, pos, *_ in departures:
-        first = demand.route_edges(route)[0]
+        first = firsts.get(route) or firsts.setdefault(route, demand.route_edges(route)[0])
         if first not in limit:
             limit[first] = net.getEdge(first).getSpeed() if net.hasEdge(first) else float("inf")
         if vid in listed and net.hasEdge(first) and pos > net.getEdge(first).getLength() + 1e-9:
