@@ -111,17 +111,11 @@ def load(run_dirs: list[Path]) -> list[Run]:
     return runs
 
 
-def _signalised(s: dict) -> bool:
-    from nrtraffic.metrics import is_signalised
-
-    return bool(s.get("signalised", is_signalised(s.get("control"))))
-
-
 def approach_figures(run_dir: Path, summary: dict) -> pd.DataFrame:
     """Per approach of a run: ``approaches.csv``'s figures (its served flow as ``throughput_veh_h``
     where it names it ``served_veh_h``), with the figures it does not hold computed as the module
     docstring says, and ``p95_queue_veh``."""
-    from nrtraffic.metrics import movement_table
+    from nrtraffic.metrics import movement_table, run_is_signalised
     from nrtraffic.results import parse_queues
 
     run_dir = Path(run_dir)
@@ -131,7 +125,8 @@ def approach_figures(run_dir: Path, summary: dict) -> pd.DataFrame:
     w0, w1 = float(summary.get("measure_from_s") or 0.0), float(summary.get("measure_to_s") or 0.0)
     veh = pd.read_csv(run_dir / "vehicles.csv", dtype={"vehicle_id": str})
     known = [(a, "") for a in appr["approach"]]
-    per = movement_table(veh.assign(movement=""), w0, w1, _signalised(summary), known).set_index("approach")
+    per = movement_table(veh.assign(movement=""), w0, w1, run_is_signalised(summary), known)
+    per = per.set_index("approach")
     per = per.drop(columns=["movement", "los_thresholds"])
     for col in ("mean_delay_s", "p95_delay_s", "stops_per_vehicle"):
         per[col] = pd.to_numeric(per[col], errors="coerce").round(3)

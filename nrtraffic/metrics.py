@@ -80,6 +80,13 @@ def is_signalised(control: str) -> bool:
     return str(control).removeprefix("sumo_") in ("traffic_light", "traffic_light_coordinated", "actuated")
 
 
+def run_is_signalised(summary: dict, control: str | None = None) -> bool:
+    """Whether a run is judged by the signalised thresholds: what its summary.json says
+    (``signalised``), else by its control (:func:`is_signalised`; ``control`` where the summary's
+    is named otherwise, as a sweep's)."""
+    return bool(summary.get("signalised", is_signalised(summary.get("control") if control is None else control)))
+
+
 def level_of_service(delay_s: float, signalised: bool) -> str:
     """HCM level-of-service letter of a mean delay [s]: the signalised thresholds for a traffic
     light, the unsignalised (two-way and all-way stop) ones otherwise."""

@@ -106,7 +106,7 @@ def run_figures(run_dir: Path) -> list[Path]:
     diagram (``arterial.png``); both of every vehicle where the run wrote fcd.xml, else of the
     controlled vehicles while under control (:mod:`nrtraffic.timespace`)."""
     from nrtraffic import plots
-    from nrtraffic.metrics import is_signalised
+    from nrtraffic.metrics import run_is_signalised
     from nrtraffic import timespace
     from nrtraffic.results import PARTIAL_TRAJECTORIES, parse_queues
 
@@ -121,7 +121,7 @@ def run_figures(run_dir: Path) -> list[Path]:
         table = pd.read_csv(mv)
         if (table["vehicles"] > 0).any():
             junction_of = {m["approach"]: m.get("junction", "") for m in doc.get("movements", {}).values()}
-            signalised = bool(summary.get("signalised", is_signalised(summary.get("control"))))
+            signalised = run_is_signalised(summary)
             made.append(plots.delay_by_movement(table, run_dir / "delays.png", signalised, junction_of))
     if (run_dir / "queues.xml").is_file():
         series = parse_queues(run_dir / "queues.xml", t0_s=summary.get("begin_s") or 0.0)

@@ -339,13 +339,13 @@ def write_movements(path: Path, result: "RunResult") -> pd.DataFrame:
 def movements_of(vehicles: pd.DataFrame, s: dict, doc_path: Path) -> pd.DataFrame:
     """The per-movement table of a run's ``vehicles`` over the window of its summary ``s``, with a
     row for every movement of ``movements.json`` (``doc_path``) where there is one."""
-    from nrtraffic.metrics import is_signalised, movement_table
+    from nrtraffic.metrics import movement_table, run_is_signalised
 
     known = ()
     if Path(doc_path).is_file():
         known = [(m["approach"], m["turn"]) for m in json.loads(Path(doc_path).read_text())["movements"].values()]
     return movement_table(vehicles, s.get("measure_from_s") or 0.0, s.get("measure_to_s") or 0.0,
-                          bool(s.get("signalised", is_signalised(s.get("control")))), known)
+                          run_is_signalised(s), known)
 
 
 def read_trajectories(run_dir: Path) -> pd.DataFrame:

@@ -518,7 +518,7 @@ def side_by_side(df: pd.DataFrame):
     approach, and per movement, the mean over the seeds of each run's own figures; ``None``
     otherwise. Returns ``[(heading, keys, table)]`` for approaches and movements."""
     from nrtraffic.compare import approach_figures
-    from nrtraffic.metrics import is_signalised, level_of_service
+    from nrtraffic.metrics import level_of_service, run_is_signalised
 
     ok = df[df["status"] == "ok"]
     if ok["control"].nunique() < 2:
@@ -534,7 +534,7 @@ def side_by_side(df: pd.DataFrame):
         except (OSError, ValueError, KeyError):
             continue
         scenarios.add(s.get("scenario"))
-        signalised[r["control"]] = bool(s.get("signalised", is_signalised(r["control"])))
+        signalised[r["control"]] = run_is_signalised(s, r["control"])
         for t, rows in ((m, mv), (a, ap)):
             t = t.assign(control=r["control"], seed=r["seed"], **{k: r[k] for k in keys})
             if "vehicles" in t:
