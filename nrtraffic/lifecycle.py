@@ -117,6 +117,7 @@ class VehicleRecord:
     movement: str = ""  # its lane-level movement (a key of the run's paths), from the lane SUMO gives it
     route: str = ""  # its turning movement (the demand's route name)
     lane: str = ""  # its entry lane: the coordinator's lane key
+    lane_kept: bool = True  # SUMO keeps it on its lane (False: it changes lanes for its route until its zone)
     junction: str = ""  # the junction it crosses (a record is one crossing; a corridor trip has several)
     legs: tuple = ()  # the turning movements of its trip, one per junction, in order
     leg: int = 0  # which of them this record is

@@ -39,7 +39,13 @@ def track_sumo_driven(st, dt: float, next_leg) -> list[str]:
         mv = st.paths[rec.movement]
         lane, pos = tab.lane[k], float(tab.lane_pos[k])
         if lane not in mv.lane_offset:
-            continue
+            # (a vehicle SUMO lets change lanes, on another lane of its approach now: the movement
+            # of that lane is its own)
+            name = None if rec.lane_kept or not math.isnan(rec.t_exit) else st.movement_on(vid, lane)
+            if name is None:
+                continue
+            rec.movement, rec.lane = name, lane
+            mv = st.paths[name]
         s_new = mv.s_of(lane, pos) - cg
         v, a = float(tab.speed[k]), float(tab.accel[k])
         s_prev = rec.s_last

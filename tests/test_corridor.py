@@ -162,27 +162,77 @@ def test_first_in_first_out_on_a_corridor_keeps_the_plans_behind_turning_leaders
     assert s["min_bumper_gap_m"] > 4.0
 
 
-def test_a_two_lane_road_between_controlled_junctions_is_refused_naming_it_and_the_fix(tmp_path, capsys):
-    """netgenerate's 2x1 grid of two-lane roads, both junctions controlled: exit 2 before SUMO
-    starts, naming the roads between them (from the network file) and what to do."""
+def _two_lane_pair(tmp_path, routes: str):
+    """netgenerate's 2x1 grid of two-lane roads (300 m between A0 and B0), both junctions
+    controlled, the demand ``routes`` (a route file's vehicles); returns the scenario folder and
+    the network."""
     import subprocess
 
     import sumolib
 
     from nrtraffic.sumo.netbuild import sumo_binary
-    from runners.cli import main
 
     d = copy_scenario("cross4", tmp_path / "sc", 'id = "C"', "",
-                      '\n[[junctions]]\nid = "A0"\n\n[[junctions]]\nid = "B0"\n')
+                      '\n[[junctions]]\nid = "A0"\ncontrol_zone_m = 150.0\n\n[[junctions]]\nid = "B0"\n'
+                      'control_zone_m = 150.0\n')
+    text = (d / "scenario.toml").read_text()
+    text = text.replace("rate_veh_h = 400.0          # per approach\n", 'sumo_routes = "pair.rou.xml"\n')
+    text = text.replace("turn_left = 0.2\nturn_right = 0.2\n", "").replace("warmup_s = 60.0", "warmup_s = 0.0")
+    (d / "scenario.toml").write_text(text)
     subprocess.run([sumo_binary("netgenerate"), "--grid", "--grid.x-number", "2", "--grid.y-number", "1",
                     "--grid.length", "300", "--grid.attach-length", "300", "--default.lanenumber", "2",
                     "--no-turnarounds", "true", "-o", str(d / "net.net.xml")], check=True, capture_output=True)
-    net = sumolib.net.readNet(str(d / "net.net.xml"))
-    between = sorted(e.getID() for e in net.getEdges() if {e.getFromNode().getID(), e.getToNode().getID()} == {"A0", "B0"})
-    assert between and all(net.getEdge(e).getLaneNumber() == 2 for e in between)
-    out = tmp_path / "run"
-    assert main(["run", str(d / "scenario.toml"), "--out", str(out), "--no-progress"]) == 2
-    err = capsys.readouterr().err
-    assert all(repr(e) in err for e in between) and "more than one lane" in err
-    assert "leave one junction of each such pair out of [[junctions]]" in err
-    assert not out.exists()
+    (d / "pair.rou.xml").write_text(f"<routes>\n{routes}</routes>\n")
+    return d, sumolib.net.readNet(str(d / "net.net.xml"))
+
+
+def test_a_two_lane_road_between_controlled_junctions_changes_lanes_for_the_next_turn(tmp_path):
+    """Two controlled junctions joined by two-lane roads (netgenerate's 2x1 grid). A car that turns
+    left at A0 leaves it on the left lane of A0B0 and turns right at B0, which only the right lane
+    serves (and the other way round); a car that goes straight on through A0 on the left lane keeps
+    it through A0 and turns right at B0 (and the other way round): SUMO's driver changes lanes
+    between the two control zones.
+    Every car crosses both junctions under control and on plan, with no collision; by SUMO's own
+    fcd output, each keeps one lane from B0's control-zone entry on, that lane is the entry lane of
+    its movement there (a lane that serves its turn, by the network's connections), and every car
+    changed lanes to get there."""
+    import xml.etree.ElementTree as ET
+
+    routes, n = [], 0
+    trips = (("top0A0 A0B0 B0bottom1", "best"), ("bottom0A0 A0B0 B0top1", "best"),  # left-right, right-left
+             ("left0A0 A0B0 B0bottom1", "1"), ("left0A0 A0B0 B0top1", "0"))  # straight on the other lane first
+    for k in range(5):  # every 12 s
+        for i, (edges, lane) in enumerate(trips):
+            routes.append(f'  <vehicle id="v{n}" depart="{12.0 * k + 3.0 * i:.1f}" departSpeed="max" '
+                          f'departLane="{lane}"><route edges="{edges}"/></vehicle>\n')
+            n += 1
+    d, net = _two_lane_pair(tmp_path, "".join(routes))
+    sc = scenario.load(d / "scenario.toml", ["scenario.duration_s=150.0", "outputs.sumo_fcd=true"])
+    res = run_scenario(sc, tmp_path / "run")
+    s, veh = res.summary, res.vehicles
+    assert s["status"] == "ok" and s["collisions"] == 0 and s["collisions_geometric"] == 0
+    at_b = veh[veh.junction == "B0"].set_index("vehicle_id")
+    assert len(at_b) == n and at_b.t_exit_s.notna().all() and (at_b.status == "released").all()
+    assert veh.max_tracking_error_m.max() < 1.0
+    lanes: dict[str, list[tuple[float, str]]] = {}  # SUMO's lane of each car on A0B0, in time
+    for step in ET.parse(tmp_path / "run" / "fcd.xml").getroot():
+        for v in step:
+            if v.get("lane", "").startswith("A0B0_"):
+                lanes.setdefault(v.get("id"), []).append((float(step.get("time")), v.get("lane")))
+    changed = 0
+    for vid, seq in lanes.items():
+        rec = at_b.loc[vid]
+        entered = [ln for t, ln in seq if t >= rec.t_enter_s - 1e-6]
+        assert entered and len(set(entered)) == 1, (vid, entered)  # the zone's lane is kept
+        assert entered[0] == rec.lane, (vid, entered[0], rec.lane)  # the entry lane of its movement
+        serves = {c.getFromLane().getID() for c in net.getEdge("A0B0").getOutgoing()[
+            net.getEdge(_exit_of(vid, routes))]}
+        assert rec.lane in serves, (vid, rec.lane, serves)
+        changed += seq[0][1] != entered[0]
+    assert changed == n  # every car changed lanes between the junctions
+
+
+def _exit_of(vid: str, routes: list[str]) -> str:
+    """The last edge of vehicle ``vid``'s route in the route-file lines ``routes``."""
+    line = next(r for r in routes if f'id="{vid}"' in r)
+    return line.split('edges="')[1].split('"')[0].split()[-1]

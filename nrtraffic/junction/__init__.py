@@ -145,6 +145,11 @@ class Layout:
             del self.movement_table[route], self.lane_movements[route], self.movement_junction[route]
             self.feeders.pop(route, None)
 
+    def entry_lanes(self, approach: str) -> set[str]:
+        """The lanes of ``approach`` that some movement starts from."""
+        return {lm[0] for route, (a, _, _) in self.movement_table.items() if a == approach
+                for lm in self.lane_movements[route]}
+
     @property
     def approaches(self) -> list[str]:
         """Every approach of every junction, sorted."""

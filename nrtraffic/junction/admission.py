@@ -64,17 +64,20 @@ class Admission:
         lv = self.listed.get(vid)
         human = vid in self.human_ids
         legs = st.itineraries.get(trip, (trip,))
-        if any(len(st.layout.lane_movements[leg]) > 1 for leg in legs):
+        lane, mv, on_it = self.lane_movement(vid, legs[0])
+        if not on_it:  # (inserted on a lane that does not serve its first turn: it changes lanes for it)
+            st.sumo.free_lane(vid)
+        elif any(len(st.layout.lane_movements[leg]) > 1 for leg in legs):
             # SUMO inserted it on the least occupied lane its route can take (departLane="best"); it
             # keeps that lane, which decides its lane-level movement
             st.sumo.keep_lane(vid)
-        lane, mv = self.lane_movement(vid, legs[0])
         rec = st.records[vid] = VehicleRecord(
             vid, st.layout.movement_table[legs[0]][0], t, movement=mv, route=legs[0], lane=lane, v_free=speed,
             controlled=(lv.controlled if lv else True) and st.control and not human,
             driver="human" if human else "automated",
             heading_offset=lv.entry_heading_offset_rad if lv else 0.0,
-            speed_profile=lv.speed_profile if lv else (), junction=st.layout.movement_junction[legs[0]], legs=legs)
+            speed_profile=lv.speed_profile if lv else (), junction=st.layout.movement_junction[legs[0]], legs=legs,
+            lane_kept=on_it)
         st.life.add(vid, rec.junction)
         # SUMO's departDelay, less the part that is only the wait for the next step
         desired = round(rec.t_depart, 2)  # as the route file gives it
@@ -89,14 +92,27 @@ class Admission:
             if rec.driver == "human" and st.control:
                 humans.to_stop_line(st, vid)
 
-    def lane_movement(self, vid: str, route: str) -> tuple[str, str]:
-        """``(entry lane, lane-level movement)`` of a vehicle on turning movement ``route``: the
-        one of the lane SUMO has it on (the first where it is on none of them yet)."""
+    def lane_movement(self, vid: str, route: str) -> tuple[str, str, bool]:
+        """``(entry lane, lane-level movement, on it)`` of a vehicle on turning movement ``route``:
+        the one of the lane SUMO has it on; where it is on none of them (it left the junction
+        upstream on a lane that does not serve its next turn, or its road has more edges before
+        the approach), the first, and ``on it`` false: the movement is then chosen where the
+        vehicle enters the control zone (:meth:`choose_lane`)."""
         lanes = self.st.layout.lane_movements[route]
-        if len(lanes) == 1:
-            return lanes[0][:2]
         here = self.st.sumo.lane_position(vid)[0]
-        return next(((ln, name) for ln, name, _, _ in lanes if ln == here), lanes[0][:2])
+        return next(((ln, name, True) for ln, name, _, _ in lanes if ln == here), (*lanes[0][:2], False))
+
+    def choose_lane(self, vid: str, lane: str) -> bool:
+        """A vehicle that SUMO lets change lanes (``lane_kept`` false) is on ``lane`` now: where a
+        movement of its turn starts there, that becomes its movement (True). Lanes are chosen by
+        SUMO's driver (strategic lane changes for its route) upstream of the control zone, and kept
+        inside it: SUMO keeps it on its lane from its zone entry on (:meth:`request`)."""
+        rec = self.st.records[vid]
+        name = self.st.movement_on(vid, lane)
+        if name is None:
+            return False
+        rec.movement, rec.lane = name, lane
+        return True
 
     def next_leg(self, vid: str) -> bool:
         """A vehicle that left a junction's merging zone with a next junction on its trip (a
@@ -110,11 +126,13 @@ class Admission:
             return False
         st.crossings.append(rec)
         route = rec.legs[rec.leg + 1]
-        lane, mv = self.lane_movement(vid, route)
+        lane, mv, on_it = self.lane_movement(vid, route)
+        if not on_it:  # SUMO's driver changes lanes for its next turn, until its control zone
+            st.sumo.free_lane(vid)
         new = st.records[vid] = VehicleRecord(
             vid, st.layout.movement_table[route][0], rec.t_depart, movement=mv, route=route, lane=lane,
             v_free=rec.v_free, controlled=rec.controlled, driver=rec.driver, speed_profile=rec.speed_profile,
-            junction=st.layout.movement_junction[route], legs=rec.legs, leg=rec.leg + 1)
+            junction=st.layout.movement_junction[route], legs=rec.legs, leg=rec.leg + 1, lane_kept=on_it)
         if new.controlled:
             st.life.move(vid, State.APPROACHING, junction=new.junction)
             st.sumo.colour(vid, "approaching")
@@ -163,10 +181,15 @@ class Admission:
             return None
         lane, pos = tab.lane[k], float(tab.lane_pos[k])
         if lane not in mv.lane_offset:
-            return None
+            if rec.lane_kept or not self.choose_lane(vid, lane):
+                return None  # (before its approach, or on a lane that does not serve its turn yet)
+            mv = st.paths[rec.movement]
         s_cg = mv.s_of(lane, pos) - st.params.cg_to_front
         if s_cg < mv.s_control - 1e-6:
             return None
+        if not rec.lane_kept:  # in the control zone: lanes are kept
+            st.sumo.keep_lane(vid)
+            rec.lane_kept = True
         if math.isnan(rec.t_arrive):
             rec.t_arrive, rec.s_arrive = st.t, s_cg
         if entry_only:

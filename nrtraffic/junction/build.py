@@ -21,6 +21,10 @@ from nrtraffic.junction import Junction, Layout, Movement
 from nrtraffic.planning.conflicts import MovementGeometry, classify, conflict_areas
 
 MIN_CONTROL_ZONE_M = 20.0  # shortest control zone a route may leave after a cut [m]
+# on a road with several lanes between two controlled junctions, where the lane decides the turn:
+# the stretch after the upstream merging zone where SUMO's driver changes lanes for its next turn,
+# before the control zone begins (about 4 s at 50 km/h) [m]
+LANE_CHANGE_M = 60.0
 PATH_SPACING_M = 0.25  # sampling of the smoothed lane paths [m]
 STOP_BEFORE_M = 0.5  # a vehicle that must stand before it crosses stops this far short of its limit (stop_lines) [m]
 HUMAN_BODY = "~human"  # suffix of a movement's name for a human driver's body on it (conflict areas)
@@ -84,14 +88,17 @@ def build_paths(sc, layout: Layout, sumo, params, control: bool) -> tuple[dict[s
         s_c = s_m - j.control_zone_m
         # a car inserted at the route's start has its centre of gravity behind one car length;
         # on a corridor the road starts at the junction upstream, which hands the car over where
-        # it leaves that junction's merging zone: a zone reaching further back is cut there, and
-        # the cut reported
+        # it leaves that junction's merging zone: a zone reaching further back is cut there (and,
+        # where the lane decides the turn, LANE_CHANGE_M further on, for SUMO's lane changes, if
+        # the zone left is long enough), and the cut reported
         first = params.length
         up = layout.junctions.get(layout.upstream_junction.get(appr, ""))
         if up is not None and up.xy is not None:
             near = np.flatnonzero(up.in_merging_zone(path.xy))
             if near.size:
                 first = max(first, float(path.s[min(near[-1] + 1, len(path.s) - 1)]))
+                if len(layout.entry_lanes(appr)) > 1 and s_m - first - LANE_CHANGE_M >= MIN_CONTROL_ZONE_M:
+                    first += LANE_CHANGE_M
         if s_c < first:
             if s_m - first < MIN_CONTROL_ZONE_M:
                 raise ValueError(f"movement {name}: only {s_m - first:.1f} m of its route lie before the merging "

@@ -21,6 +21,7 @@ import numpy as np
 
 _ACTIVE = None
 DEFAULT_SPEED_MODE = 31  # SUMO's default: all safety checks on
+DEFAULT_LANE_CHANGE_MODE = 1621  # SUMO's default: strategic, cooperative, speed gain and keep-right changes
 KEEP_ROUTE_EXACT = 3  # moveToXY keepRoute bits: 1 keep the route, 2 the exact (lateral) position
 
 
@@ -463,6 +464,11 @@ class SumoSession:
         """Let SUMO's driver make no lane change (lane-change mode 0): the vehicle stays on the
         lane it was inserted on."""
         self.traci.vehicle.setLaneChangeMode(vid, 0)
+
+    def free_lane(self, vid: str) -> None:
+        """Let SUMO's driver change lanes as it would on its own (SUMO's default lane-change mode:
+        strategic changes for its route, cooperative, for speed, keeping right)."""
+        self.traci.vehicle.setLaneChangeMode(vid, DEFAULT_LANE_CHANGE_MODE)
 
     def stop_at(self, vid: str, lane: str, pos_m: float) -> None:
         """Make SUMO's driver stop with its front bumper at ``pos_m`` [m] on ``lane`` (a lane of a

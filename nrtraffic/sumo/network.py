@@ -162,17 +162,6 @@ def check_scenario(net_path: Path, junction_ids=(), edges: tuple[str, ...] = ())
                         f"{'are' if len(missing) > 1 else 'is'} not in it")
     if problems:
         raise NetworkError(f"{net_path}: " + "; ".join(problems))
-    if len(junction_ids) > 1:  # a corridor: between two controlled junctions, one lane each way
-        wide = [e.getID() for e in read_net(net_path).getEdges(withInternal=False)
-                if e.getFromNode().getID() in junction_ids and e.getToNode().getID() in junction_ids
-                and e.getLaneNumber() > 1]
-        if wide:
-            raise NetworkError(f"{net_path}: the road{'s' if len(wide) > 1 else ''} {', '.join(map(repr, wide))} "
-                               f"between two controlled junctions {'have' if len(wide) > 1 else 'has'} more than one "
-                               "lane; nrtraffic drives corridors with one lane each way between controlled junctions "
-                               "(its vehicles keep the lane they enter on, and would need to change lanes there): "
-                               "leave one junction of each such pair out of [[junctions]] (SUMO then drives it), or "
-                               "give those roads one lane each way")
     for junction_id in junction_ids:  # there, but is it a junction with movements to coordinate?
         try:
             junction_movements(net_path, junction_id)
