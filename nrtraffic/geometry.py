@@ -291,25 +291,47 @@ def rectangles_touch(x1, y1, h1, x2, y2, h2, length, width):
 @njit(cache=True, error_model="numpy")
 def touching_pairs(cx, cy, psi, length, width):
     """Index pairs ``i < j`` of rectangles (centres ``(cx, cy)`` [m], headings ``psi`` [rad], all
-    ``length`` x ``width`` [m]) that touch; only pairs whose circumscribed circles meet are tested.
-    Returns two int arrays."""
+    ``length`` x ``width`` [m]) that touch. Returns two int arrays, ordered by ``i`` then ``j``.
+
+    Only pairs whose circumscribed circles meet are tested, and those are found on a uniform grid
+    of cells one circle diameter wide: each rectangle is compared with the ones in its own cell and
+    the eight around it, so the work grows with the number of rectangles, not with its square."""
     n = cx.shape[0]
-    r2 = length * length + width * width
-    cnt = 0
+    r2 = length * length + width * width  # (the circles' diameter, squared)
     ii = np.empty(8, dtype=np.int64)
     jj = np.empty(8, dtype=np.int64)
+    if n < 2:
+        return ii[:0], jj[:0]
+    cell = math.sqrt(r2)
+    gx = np.floor((cx - cx.min()) / cell).astype(np.int64) + 1
+    gy = np.floor((cy - cy.min()) / cell).astype(np.int64) + 1
+    rows = gy.max() + 2
+    key = gx * rows + gy  # (cells 0 and max + 1 of each axis stay empty: no neighbour wraps round)
+    order = np.argsort(key)
+    skey = key[order]
+    cnt = 0
     for i in range(n):
-        for j in range(i + 1, n):
-            dx = cx[j] - cx[i]
-            dy = cy[j] - cy[i]
-            if dx * dx + dy * dy > r2:
-                continue
-            if not rectangles_touch(cx[i], cy[i], psi[i], cx[j], cy[j], psi[j], length, width):
-                continue
-            if cnt == ii.shape[0]:
-                ii = np.concatenate((ii, np.empty(cnt, dtype=np.int64)))
-                jj = np.concatenate((jj, np.empty(cnt, dtype=np.int64)))
-            ii[cnt] = i
-            jj[cnt] = j
-            cnt += 1
-    return ii[:cnt], jj[:cnt]
+        for dgx in range(-1, 2):
+            for dgy in range(-1, 2):
+                k = (gx[i] + dgx) * rows + gy[i] + dgy
+                b = np.searchsorted(skey, k)
+                while b < n and skey[b] == k:
+                    j = order[b]
+                    b += 1
+                    if j <= i:
+                        continue
+                    dx = cx[j] - cx[i]
+                    dy = cy[j] - cy[i]
+                    if dx * dx + dy * dy > r2:
+                        continue
+                    if not rectangles_touch(cx[i], cy[i], psi[i], cx[j], cy[j], psi[j], length, width):
+                        continue
+                    if cnt == ii.shape[0]:
+                        ii = np.concatenate((ii, np.empty(cnt, dtype=np.int64)))
+                        jj = np.concatenate((jj, np.empty(cnt, dtype=np.int64)))
+                    ii[cnt] = i
+                    jj[cnt] = j
+                    cnt += 1
+    ii, jj = ii[:cnt], jj[:cnt]
+    o = np.argsort(ii * n + jj)
+    return ii[o], jj[o]

@@ -148,6 +148,7 @@ class VehicleRecord:
     depart_delay: float = 0.0  # SUMO's wait to insert it past its desired departure (a backed-up lane) [s]
     t_arrive: float = math.nan  # when its centre of gravity crossed the control-zone entry [s] ...
     s_arrive: float = math.nan  # ... and where on its path it was then [m] (delay is counted from there)
+    look_after: float = -math.inf  # before its zone entry: the earliest time it can reach it [s]
 
 
 class Lifecycle:
@@ -217,6 +218,14 @@ class Lifecycle:
                 out = sorted(places, key=places.__getitem__)
         if junction is not None:
             out = [v for v in out if self._junction[v] == junction]
+        return out
+
+    def by_junction(self, *states: State) -> dict[str, list[str]]:
+        """:meth:`members` of ``states`` at every junction at once (junction -> its vehicles, in
+        order; junctions with none left out): one pass, however many junctions there are."""
+        out: dict[str, list[str]] = {}
+        for v in self.members(*states):
+            out.setdefault(self._junction[v], []).append(v)
         return out
 
     def count(self, state: State) -> int:

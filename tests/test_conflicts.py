@@ -61,6 +61,17 @@ def test_touching_pairs_finds_every_overlapping_pair():
     assert len(ref) > 5 and got == ref
 
 
+def test_touching_pairs_on_a_road_network_scale_matches_every_pair_tested():
+    """400 cars on 2 km x 2 km with negative coordinates, some in dense clusters (queues): the
+    pairs found on the grid of cells are those that every pair tested one by one gives, in order."""
+    rng = np.random.default_rng(11)
+    c = np.vstack([rng.uniform(-1000, 1000, (250, 2)), rng.normal((-300.0, 420.0), 6.0, (150, 2))])
+    h = rng.uniform(-math.pi, math.pi, len(c))
+    ii, jj = touching_pairs(c[:, 0], c[:, 1], h, L, W)
+    ref = [(i, j) for i in range(len(c)) for j in range(i + 1, len(c)) if boxes_overlap(c[i], h[i], c[j], h[j], L, W)]
+    assert len(ref) > 20 and list(zip(ii.tolist(), jj.tolist())) == ref
+
+
 @pytest.mark.parametrize("clearance", [0.0, 0.3, 0.6, 0.7, 1.0])
 def test_parallel_lanes_conflict_exactly_when_the_widened_bodies_touch(clearance):
     """Two straight paths 3.2 m apart (a lane width): the widened bodies touch when

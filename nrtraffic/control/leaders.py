@@ -26,10 +26,14 @@ def find_leaders(lane_id, lane_pos, x, y, psi, speed, accel, rows, path_id, pl_o
     frame then go to ``lead_ext[i]``: px, py, vx, vy, ax, ay) and the bumper gap to it in ``gap``
     [m] (NaN without a leader; cars of one ``length``). The search runs along the vehicle's own
     lane ahead of it, then lane by lane along its path until ``lookahead_m`` of path lies behind
-    the lane searched. The table, one entry per vehicle SUMO lists: ``lane_id`` (lane index, -1
+    the lane searched; each lane's vehicles are found in the table sorted by lane (the work grows
+    with the vehicles near each one, not with the whole table). The table, one entry per vehicle
+    SUMO lists: ``lane_id`` (lane index, -1
     off every path), ``lane_pos`` and the front-bumper ``x``, ``y`` [m], ``psi`` [rad], ``speed``
     [m/s], ``accel`` [m/s^2]."""
     n_tab = lane_id.shape[0]
+    by_lane = np.argsort(lane_id, kind="mergesort")  # table rows by lane (in table order within one)
+    lane_sorted = lane_id[by_lane]
     in_batch = np.full(n_tab, EXTERNAL_LEADER, dtype=np.int64)  # table row -> batch index
     for i in range(rows.shape[0]):
         if rows[i] >= 0:
@@ -55,8 +59,9 @@ def find_leaders(lane_id, lane_pos, x, y, psi, speed, accel, rows, path_id, pl_o
         for q in range(k0, a1):
             best = -1
             best_pos = math.inf
-            for r in range(n_tab):
-                if r == k or lane_id[r] != pl_lane[q]:
+            for b in range(np.searchsorted(lane_sorted, pl_lane[q]), np.searchsorted(lane_sorted, pl_lane[q], "right")):
+                r = by_lane[b]  # (only the vehicles on this lane)
+                if r == k:
                     continue
                 lp = lane_pos[r]
                 if (q > k0 or lp > pos) and lp < best_pos:

@@ -36,6 +36,9 @@ FROM_REST_SLACK_S = 0.3
 # a vehicle entering the control zone slower than this share of its free-flow speed has been slowed
 # by the traffic ahead (a queue reaching back past the zone entry): it does not keep its entry speed
 QUEUED_SPEED_SHARE = 0.9
+# no car drives faster than this: a car before its control zone is looked at again when it could
+# have reached the zone at this speed (admission's work grows with the cars near zone entries) [m/s]
+SPEED_BOUND_MPS = 70.0
 # a batch closes early when one of its vehicles comes within this time of the last point where it
 # can still stop before the merging zone [s]
 BATCH_CLOSE_S = 1.0
@@ -174,6 +177,8 @@ class Admission:
         has not crossed. ``entry_only``: only whether it crossed (True or None)."""
         st = self.st
         rec = st.records[vid]
+        if st.t < rec.look_after:  # (it cannot have reached its zone yet)
+            return None
         mv = st.paths[rec.movement]
         tab = st.snap
         k = tab.row.get(vid)
@@ -186,6 +191,8 @@ class Admission:
             mv = st.paths[rec.movement]
         s_cg = mv.s_of(lane, pos) - st.params.cg_to_front
         if s_cg < mv.s_control - 1e-6:
+            if rec.lane_kept:  # (one that may change lanes is looked at each step: its movement may change)
+                rec.look_after = st.t + (mv.s_control - s_cg) / SPEED_BOUND_MPS
             return None
         if not rec.lane_kept:  # in the control zone: lanes are kept
             st.sumo.keep_lane(vid)
@@ -241,8 +248,9 @@ class Admission:
                     j.batch_closes = st.t + st.sc.coordinator.batch_window_s
                 st.life.move(vid, State.BATCHED)
                 st.sumo.colour(vid, "pending")
+        pending = st.life.by_junction(State.BATCHED, State.HELD) if len(st.junctions) > 1 else None
         for j in st.junctions.values():
-            self.close_batch(j, dt)
+            self.close_batch(j, dt, pending.get(j.id, []) if pending is not None else None)
         if st.life.count(State.STARTING):
             self.account_waiting(st.life.members(State.STARTING), dt)
 
@@ -250,11 +258,11 @@ class Admission:
         """Junction ``j``'s batch: its vehicles waiting for it to close (held ones too)."""
         return self.st.life.members(State.BATCHED, State.HELD, junction=j.id if len(self.st.junctions) > 1 else None)
 
-    def close_batch(self, j, dt: float) -> None:
-        """Junction ``j``'s batch: its waiting vehicles accounted for, and all scheduled together
-        when the batch closes (:meth:`admit_batch`)."""
+    def close_batch(self, j, dt: float, pending: list[str] | None = None) -> None:
+        """Junction ``j``'s batch (``pending``, default :meth:`pending`): its waiting vehicles
+        accounted for, and all scheduled together when the batch closes (:meth:`admit_batch`)."""
         st = self.st
-        pending = self.pending(j)
+        pending = self.pending(j) if pending is None else pending
         if not pending:
             return
         # behind a human: checked each step, until its start is reserved (then it leaves the batch)
