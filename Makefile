@@ -43,8 +43,8 @@ nets: $(STAMP)
 	$(BIN)/python sumo_scenarios/paper_curved/generate.py
 	$(BIN)/python sumo_scenarios/paper_cbf/generate.py
 	$(BIN)/python sumo_scenarios/generate_junctions.py
-	PATH="$(CURDIR)/$(BIN):$$PATH" $(BIN)/python sumo_scenarios/grid4/generate.py
-	PATH="$(CURDIR)/$(BIN):$$PATH" $(BIN)/python sumo_scenarios/grid4/generate.py --no-network --rate 300 --routes demand_high.rou.xml
+	$(BIN)/python sumo_scenarios/grid4/generate.py
+	$(BIN)/python sumo_scenarios/grid4/generate.py --no-network --rate 300 --routes demand_high.rou.xml
 
 # the recorded run that the tests replay (tests/test_replay.py); regenerate it, and commit it, only
 # when a deliberate change alters results. Recorded and replayed with numba's portable CPU target.

@@ -112,6 +112,8 @@ class Engine:
         (default: by ``label``, :func:`~nrtraffic.metrics.is_signalised`; an ``as_is`` baseline
         says it from its network).
     additional : further SUMO additional files (a baseline's coordinated signal offsets).
+    stop_requested : called every ten steps; a name it returns (a signal that came) stops the run as
+        Ctrl-C does, where the interrupt itself was lost (raised inside a compiled library).
     checkpoint : called with the figures so far (a :class:`RunResult` whose summary says
         ``"status": "running"``) about every ``CHECKPOINT_WALL_S`` seconds of wall time, so that a
         run killed outright leaves its last checkpoint on disk. Wall-clock timing only decides
@@ -121,8 +123,10 @@ class Engine:
     def __init__(self, scenario, workdir: Path, seed: int | None = None, duration_s: float | None = None,
                  trajectories: TrajectoryWriter | None = None, progress: bool = False, control: bool = True,
                  network: Path | None = None, label: str = "nrtraffic", checkpoint=None, gui: bool = False,
-                 additional: tuple = (), signalised: bool | None = None, gui_delay_ms: float = 100.0):
+                 additional: tuple = (), signalised: bool | None = None, gui_delay_ms: float = 100.0,
+                 stop_requested=None):
         self.sc = scenario
+        self.stop_requested = stop_requested
         self.additional = tuple(additional)
         self.control = control
         self.network_path = Path(network) if network is not None else scenario.network_path
@@ -286,6 +290,9 @@ class Engine:
                 now = self._tick(dt, step % log_every == 0, step % 10 == 0)
                 if step % 10 == 0:
                     self._watch()
+                    stop = self.stop_requested() if self.stop_requested is not None else None
+                    if stop:  # (a library the signal came into may have swallowed its interrupt)
+                        raise KeyboardInterrupt(f"stopped by {stop}")
                 step += 1
                 bar.update(dt)
                 if plain_progress and st.t + dt >= next_report:  # not a terminal: a line every 10 %

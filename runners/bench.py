@@ -171,6 +171,124 @@ def bench_memory(duration_s: float) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+SCALE_SIDES = (1, 2, 4, 6)  # grids of 1, 4, 16 and 36 junctions
+SCALE_RATE_VEH_H = 200.0  # departures per hour at each road into a grid: the cars at once grow with it
+# the phases of the loop (WALL_PHASES without "qp", which is part of "admission")
+LOOP_PHASES = ("kernel", "sumo_step", "sumo_io", "admission", "leaders", "collision_check", "logging")
+
+
+def scale_run(side: int, duration_s: float) -> None:
+    """A grid of ``side`` x ``side`` junctions (:func:`~nrtraffic.sumo.netbuild.grid_network`, grid4's
+    settings), every junction controlled, ``SCALE_RATE_VEH_H`` from each road in, run for
+    ``duration_s`` (after 30 s of it untimed, which loads the compiled kernels), then SUMO alone on
+    the same route file; prints its figures and this process's peak resident memory as JSON (called
+    in a fresh process)."""
+    import re
+
+    from nrtraffic.sumo.adapter import drive_alone
+    from nrtraffic.sumo.netbuild import grid_network, random_trips
+    from runners.single import run_scenario
+
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(tmp)
+        grid_network(side, d / "net.net.xml")
+        random_trips(d / "net.net.xml", d / "demand.rou.xml", SCALE_RATE_VEH_H, entries=4 * side, end_s=duration_s)
+        text = (ROOT / "sumo_scenarios" / "grid4" / "scenario.toml").read_text()
+        ids = [f"{chr(ord('A') + i)}{j}" for i in range(side) for j in range(side)]
+        text = re.sub(r'\[\[junctions\]\]\nid = "\w+"\n\n', "", text)
+        text += "".join(f'\n[[junctions]]\nid = "{j}"\n' for j in ids)
+        (d / "scenario.toml").write_text(text)
+        sc = scenario.load(d / "scenario.toml", [f"scenario.duration_s={duration_s}", "outputs.warmup_s=0.0"])
+        # 30 s first, not timed: this process loads every compiled kernel from numba's cache once
+        run_scenario(sc, d / "warm", duration_s=30.0)
+        res = run_scenario(sc, d / "run", duration_s=duration_s)
+        s, veh = res.summary, res.vehicles
+        b = s.get("wall_time_breakdown_s", {})
+        steps = s["sim_time_s"] / sc.sumo.step_length_s
+        # controlled vehicle-steps: the plant's sub-steps over the sub-steps per SUMO step
+        vsteps = float(veh.plant_steps.sum()) * sc.controller.plant_step_s / sc.sumo.step_length_s
+        rss = peak_rss_mib()
+        sumo_wall = drive_alone(sc.network_path, d / "run" / "sumo" / "routes.rou.xml", sc.sumo.step_length_s,
+                                sc.general.seed, s["sim_time_s"], sc.sumo.lateral_resolution_m)
+    print(json.dumps({"junctions": side * side, "sim_time_s": s["sim_time_s"], "cosim_wall_s": s["wall_time_s"],
+                      "loop_s": sum(b.get(k, 0.0) for k in LOOP_PHASES), "breakdown": b, "vehicle_steps": vsteps,
+                      "at_once": vsteps / steps, "sumo_wall_s": sumo_wall, "admitted": s["vehicles_admitted"],
+                      "collisions": s["collisions"] + s["collisions_geometric"], "served": s["served_share"],
+                      "peak_rss_mib": rss}))
+
+
+def bench_scale(side: int, duration_s: float) -> dict:
+    """:func:`scale_run` in a process of its own (its memory is its own)."""
+    code = f"from runners.bench import scale_run; scale_run({int(side)}, {float(duration_s)!r})"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    if out.returncode != 0:
+        raise RuntimeError(f"the {side} x {side} grid failed: {out.stderr.strip()[-800:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def scale_figure(rows: list[dict], path: Path) -> None:
+    """Wall time per controlled vehicle and SUMO step, by phase, against the controlled vehicles at
+    once (one point per grid)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    x = [r["at_once"] for r in rows]
+    ax.plot(x, [1e6 * r["loop_s"] / r["vehicle_steps"] for r in rows], "o-", color="k", label="whole loop")
+    for k in ("kernel", "sumo_step", "sumo_io", "admission", "leaders", "collision_check"):
+        ax.plot(x, [1e6 * r["breakdown"].get(k, 0.0) / r["vehicle_steps"] for r in rows], ".--", label=k)
+    for r in rows:
+        ax.annotate(f"{r['junctions']}", (r["at_once"], 1e6 * r["loop_s"] / r["vehicle_steps"]),
+                    textcoords="offset points", xytext=(4, 4), fontsize=8)
+    ax.set_xscale("log")
+    ax.set_xlabel("controlled vehicles at once (mean; label: junctions)")
+    ax.set_ylabel("wall time per controlled vehicle-step [us]")
+    ax.set_ylim(bottom=0)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def scale_section(duration_s: float, figure: Path | None) -> list[str]:
+    """The scale benchmark's table (grids of ``SCALE_SIDES``), and its figure at ``figure``."""
+    rows = [bench_scale(n, duration_s) for n in SCALE_SIDES]
+    if figure is not None:
+        scale_figure(rows, figure)
+    one = rows[0]["loop_s"] / rows[0]["vehicle_steps"]
+    lines = [
+        f"## Scale: grids of two-lane roads, every junction controlled ({duration_s:.0f} s, "
+        f"{SCALE_RATE_VEH_H:.0f} veh/h from each road in)",
+        "",
+        "| junctions | controlled at once (mean) | admitted | loop per controlled vehicle-step | against 1 junction "
+        "| real-time factor | SUMO alone real-time factor | co-simulation / SUMO alone | peak memory | collisions "
+        "| served |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        per = r["loop_s"] / r["vehicle_steps"]
+        lines.append(f"| {r['junctions']} | {r['at_once']:.1f} | {r['admitted']} | {1e6 * per:.1f} us | "
+                     f"{per / one:.2f} x | {r['sim_time_s'] / r['cosim_wall_s']:.1f} | "
+                     f"{r['sim_time_s'] / r['sumo_wall_s']:.0f} | {r['cosim_wall_s'] / r['sumo_wall_s']:.1f} x | "
+                     f"{r['peak_rss_mib']:.0f} MiB | {r['collisions']} | {100 * r['served']:.1f} % |")
+    lines += ["", "Per controlled vehicle-step, by phase [us]:", "",
+              "| junctions | " + " | ".join(LOOP_PHASES) + " |", "|---|" + "---|" * len(LOOP_PHASES)]
+    for r in rows:
+        lines.append(f"| {r['junctions']} | " + " | ".join(
+            f"{1e6 * r['breakdown'].get(k, 0.0) / r['vehicle_steps']:.1f}" for k in LOOP_PHASES) + " |")
+    lines += ["", "The loop is the simulation's tick (SUMO's step, reading and writing SUMO, admission, leaders, "
+              "the own collision check, the kernel, logging), without set-up and results; a controlled "
+              "vehicle-step is one controlled vehicle over one SUMO step (0.1 s). SUMO's step and I/O also carry "
+              "the vehicles SUMO drives on their way to a control zone. Peak memory is the whole process's, run "
+              "and SUMO alone."]
+    if figure is not None:
+        lines += ["", f"![cost per vehicle-step against vehicles at once]({figure.name})"]
+    return lines
+
+
 def _breakdown_rows(r: dict) -> list[str]:
     b = dict(r["breakdown"])
     total = r["cosim_wall_s"]
@@ -269,8 +387,14 @@ def run_all(quick: bool = False) -> str:
 
 
 def main(args) -> int:
+    if args.scale:
+        write = Path(args.write or "bench/scale.md")
+        table = "\n".join(["# nrtraffic scale benchmark", "", *scale_section(120.0 if args.quick else 600.0,
+                                                                                write.with_suffix(".png"))]) + "\n"
+        print(table)
+        write.write_text(table)
+        return 0
     table = run_all(quick=args.quick)
     print(table)
-    if args.write is not None:
-        Path(args.write).write_text(table)
+    Path(args.write or "bench/results.md").write_text(table)
     return 0

@@ -197,10 +197,14 @@ def _add_bench(sub) -> None:
                        description="Benchmark the compiled kernels, whole runs against SUMO alone on the same "
                                    "demand, where a run's time goes, and peak memory (ratios measured in one "
                                    "run; takes a few minutes).")
-    p.add_argument("--write", type=Path, default=Path("bench/results.md"), metavar="FILE",
-                   help="write the table to FILE (markdown; default bench/results.md)")
+    p.add_argument("--write", type=Path, default=None, metavar="FILE",
+                   help="write the table to FILE (markdown; default bench/results.md, with --scale bench/scale.md)")
     p.add_argument("--quick", action="store_true",
                    help="short runs (120 s instead of 600 s; memory at 60 and 120 s): a smoke test, not the figures")
+    p.add_argument("--scale", action="store_true",
+                   help="only the scale benchmark: grids of 1, 4, 16 and 36 junctions of two-lane roads, every "
+                        "junction controlled: cost per controlled vehicle-step and memory (its figure goes beside "
+                        "the table, as .png)")
 
 
 class _Version(argparse.Action):
@@ -288,7 +292,11 @@ def main(argv: list[str] | None = None) -> int:
     on (:mod:`runners.interrupts`): a run that they stop always leaves a summary.json."""
     interrupts.install()
     try:
-        code = _main(argv)
+        try:
+            code = _main(argv)
+        except KeyboardInterrupt as exc:  # (before the command's own handling: while it starts)
+            print(f"nrtraffic: stopped: {exc or 'interrupted'}", file=sys.stderr)
+            return 1
         stop = interrupts.pending()
         if stop is not None and code == 0:
             print(f"nrtraffic: stopped by {stop} after the run had finished; its outputs are complete",

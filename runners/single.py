@@ -321,6 +321,7 @@ def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: 
     try:
         interrupts.arm()  # a SIGTERM or Ctrl-C that came during the checks stops the run here
         engine = Engine(resolved, out, trajectories=writer, progress=progress, checkpoint=checkpoint,
+                        stop_requested=interrupts.received,
                         **engine_options)
         result = engine.run()  # (turns an interrupt while it runs into RunFailed)
     except KeyboardInterrupt as exc:  # before the engine ran, or while it gathered its figures

@@ -236,6 +236,17 @@ def _scenario_copy(tmp_path, old=None, new=None, extra=""):
      "SUMO would wait for a TraCI client of its own"),
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--device.toc.probability", "1"]', "",
      "SUMO's take-over device needs parameters of the vehicle type"),
+    # SUMO started and failed on these, or (the mesoscopic model) ran with no car controlled and said "ok"
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--mesosim"]', "",
+     "--mesosim: SUMO's mesoscopic model has no lanes"),
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--version"]', "", "--version: it prints SUMO's"),
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = [""]', "", "sumo.extra_args: an empty item"),
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["foo.sumocfg"]', "",
+     "'foo.sumocfg' is not an option"),
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--max-depart-delay"]', "",
+     "--max-depart-delay needs a value (time)"),
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--max-depart-delay", "abc"]', "",
+     "--max-depart-delay needs a number (time), not 'abc'"),
 ])
 def test_scenarios_that_would_run_wrong_exit_2_naming_the_problem(old, new, extra, message, tmp_path, capsys):
     d = _scenario_copy(tmp_path, old or None, new or None, extra)

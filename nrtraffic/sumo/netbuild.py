@@ -192,3 +192,47 @@ def actuated(net: Path, junction_ids, output: Path) -> Path:
     tree.write(output, encoding="UTF-8", xml_declaration=True)
     return output
 
+
+
+def grid_network(n: int, output: Path, block_m: float = 250.0, lanes: int = 2, speed_mps: float = 13.89,
+                 seed: int = 42) -> Path:
+    """SUMO's ``netgenerate`` grid of ``n`` x ``n`` junctions (ids ``A0`` ... like netgenerate's),
+    ``block_m`` [m] apart, roads of ``lanes`` lanes each way at ``speed_mps`` [m/s], and a road of
+    ``block_m`` in from each side at every row and column (``4 n`` entries); no U-turns."""
+    args = [sumo_binary("netgenerate"), "--grid", "--grid.number", str(n), "--grid.length", f"{block_m:g}",
+            "--grid.attach-length", f"{block_m:g}", "--default.lanenumber", str(lanes), "--default.speed",
+            f"{speed_mps:g}", "--no-turnarounds", "true", "--seed", str(seed), "-o", str(output)]
+    if n == 1:  # (a single junction: netgenerate needs two nodes a side; the grid is then four arms)
+        args[args.index("--grid.number") + 1] = "1"
+    out = subprocess.run(args, capture_output=True, text=True)
+    if out.returncode != 0:
+        raise SumoToolError(f"netgenerate failed: {out.stderr.strip()[-500:]}")
+    return output
+
+
+def random_trips(net: Path, output: Path, veh_h_per_entry: float, entries: int, end_s: float,
+                 seed: int = 42, min_distance_m: float = 300.0) -> Path:
+    """A route file of trips from the network's fringe (its roads in) to a random fringe exit at
+    least ``min_distance_m`` [m] away, ``veh_h_per_entry`` departures per hour at each of
+    ``entries`` entries on average, from 0 to ``end_s`` [s], each on the lane that suits its route
+    best at the road's speed: SUMO's ``randomTrips.py``, routed on the shortest path by
+    ``duarouter``. The tools' comments (which hold this machine's paths) are left out."""
+    import re
+    import sys
+    import tempfile
+
+    import sumo
+
+    tools = Path(sumo.__file__).parent / "tools"
+    period = 3600.0 / (veh_h_per_entry * entries)  # one departure every `period` seconds over all entries
+    with tempfile.TemporaryDirectory() as tmp:
+        env = dict(os.environ, PATH=f"{Path(sumo_binary('duarouter')).parent}{os.pathsep}{os.environ.get('PATH', '')}")
+        out = subprocess.run([sys.executable, str(tools / "randomTrips.py"), "-n", str(net), "--fringe-factor", "max",
+                              "--period", f"{period:.6f}", "--begin", "0", "--end", f"{end_s:g}", "--seed", str(seed),
+                              "--trip-attributes", 'departLane="best" departSpeed="max"', "--prefix", "g",
+                              "--min-distance", f"{min_distance_m:g}", "-o", str(Path(tmp) / "trips.xml"),
+                              "--route-file", str(output), "--validate"], capture_output=True, text=True, env=env)
+    if out.returncode != 0:
+        raise SumoToolError(f"randomTrips.py failed: {out.stderr.strip()[-500:]}")
+    output.write_text(re.sub(r"<!--.*?-->\s*", "", output.read_text(), flags=re.S))
+    return output

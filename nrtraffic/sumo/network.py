@@ -171,11 +171,12 @@ def check_scenario(net_path: Path, junction_ids=(), edges: tuple[str, ...] = ())
             pass
 
 
-_SUMO_OPTIONS: set[str] = set()
+_SUMO_OPTIONS: dict[str, str] = {}
 
 
-def sumo_options() -> set[str]:
-    """Names of SUMO's command-line options (from ``sumo --save-template``), read once."""
+def sumo_options() -> dict[str, str]:
+    """SUMO's command-line options and their types (``"begin" -> "TIME"``, ``"mesosim" -> "BOOL"``;
+    from ``sumo --save-template``), read once."""
     if not _SUMO_OPTIONS:
         import subprocess
         import xml.etree.ElementTree as ET
@@ -185,8 +186,31 @@ def sumo_options() -> set[str]:
         exe = sumo_binary("sumo")
         xml = subprocess.run([str(exe), "--save-template", "stdout"], capture_output=True, text=True, check=True).stdout
         for section in ET.fromstring(xml[xml.index("<"):]):
-            _SUMO_OPTIONS.update(opt.tag for opt in section)
+            _SUMO_OPTIONS.update((opt.tag, opt.get("type", "STR")) for opt in section)
     return _SUMO_OPTIONS
+
+
+# SUMO options that leave the run nothing to control or nothing to run
+NOT_FOR_A_RUN = {
+    "mesosim": "SUMO's mesoscopic model has no lanes or positions to place a controlled car on",
+    "help": "it prints SUMO's help instead of running", "version": "it prints SUMO's version instead of running",
+    "print-options": "it prints SUMO's options instead of running",
+}
+
+
+def _value_error(name: str, kind: str, value: str | None) -> str | None:
+    """Why ``value`` does not suit option ``name`` of SUMO type ``kind`` (None: it does)."""
+    if kind == "BOOL":
+        return None if value is None or value.lower() in ("true", "false", "on", "off", "yes", "no", "1", "0") \
+            else f"--{name} takes true or false, not {value!r}"
+    if value is None:
+        return f"--{name} needs a value ({kind.lower()})"
+    if kind in ("INT", "FLOAT", "TIME"):
+        try:
+            float(value) if kind != "INT" else int(value)
+        except ValueError:
+            return f"--{name} needs a number ({kind.lower()}), not {value!r}"
+    return None
 
 
 _SUMO_WRITING: set[str] = set()
@@ -258,10 +282,10 @@ def check_sumo_args(args: tuple[str, ...]) -> None:
     ``-5`` is not an option."""
     import re
 
+    if not args:
+        return
     given = [(a, a[2:].split("=")[0]) for a in args if a.startswith("--")]
     short = [a for a in args if re.match(r"-[A-Za-z]", a)]
-    if not given and not short:
-        return
     letters = sumo_short_options()
     unknown = [a for a in short if a[1] not in letters]
     given += [(a, letters[a[1]]) for a in short if a[1] in letters]
@@ -269,6 +293,37 @@ def check_sumo_args(args: tuple[str, ...]) -> None:
     unknown += [a for a, n in given if n not in known]
     if unknown:
         raise NetworkError(f"sumo.extra_args: SUMO has no option {', '.join(unknown)}")
+    # each option with its value: "--name=value", or "--name value" (a BOOL's value is optional)
+    k, problems = 0, []
+    while k < len(args):
+        a = args[k]
+        is_option = a.startswith("--") or bool(re.match(r"-[A-Za-z]", a))
+        if not is_option:
+            problems.append(f"{a!r} is not an option (each item is --name, --name=value, or the value after "
+                            f"--name)" if a.strip() else "an empty item")
+            k += 1
+            continue
+        name = a[2:].split("=")[0] if a.startswith("--") else letters[a[1]]
+        kind = known[name]
+        if "=" in a or (a.startswith("-") and not a.startswith("--") and len(a) > 2):
+            value = a.split("=", 1)[1] if "=" in a else a[2:]
+            k += 1
+        elif k + 1 < len(args) and not (args[k + 1].startswith("--") or re.match(r"-[A-Za-z]", args[k + 1])) \
+                and (kind != "BOOL" or args[k + 1].lower() in ("true", "false", "on", "off", "yes", "no", "1", "0")):
+            value = args[k + 1]
+            k += 2
+        else:
+            value = None
+            k += 1
+        why = _value_error(name, kind, value)
+        if why:
+            problems.append(why)
+    if problems:
+        raise NetworkError(f"sumo.extra_args: {'; '.join(problems)}")
+    unfit = [(a, n) for a, n in given if n in NOT_FOR_A_RUN]
+    if unfit:
+        a, n = unfit[0]
+        raise NetworkError(f"sumo.extra_args: {a}: {NOT_FOR_A_RUN[n]}; leave it out")
     clock = [a if a.startswith("--") else f"{a} (--{n})" for a, n in given if n in ("begin", "end")]
     if clock:
         raise NetworkError(f"sumo.extra_args: {', '.join(clock)} sets SUMO's clock, which the run keeps itself: "
