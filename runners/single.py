@@ -119,7 +119,7 @@ def prepare_run_dir(sc: scenario_mod.Scenario, out: Path) -> Path:
     check(sc)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    begin_manifest(out)
+    begin_manifest(out, run_file_names(sc))
     (out / "sumo").mkdir(exist_ok=True)
     net = sc.network_path
     copies = [(net, out / "sumo" / net.name)] + [(src, out / name) for src, name in route_copies(sc)]
@@ -195,11 +195,20 @@ def read_manifest(out: Path) -> dict | None:
     return m
 
 
-def begin_manifest(out: Path) -> None:
-    """Start ``out``'s manifest: what is there before the run (none of it is the run's)."""
+def run_file_names(sc: scenario_mod.Scenario) -> list[str]:
+    """The files (and the ``sumo`` folder) a run of ``sc`` writes into its directory, by name."""
+    return [*RUN_FILES, "sumo", "sumo/routes.rou.xml", "sumo/run.sumocfg", "sumo/queues.add.xml",
+            f"sumo/{sc.network_path.name}", *(name for _, name in route_copies(sc))]
+
+
+def begin_manifest(out: Path, planned=()) -> None:
+    """Start ``out``'s manifest: what is there before the run (none of it is the run's), and as
+    created already the names of ``planned`` that are not there: the run's files are listed before
+    they are written, so that a run killed outright (or stopped by a full disk) can still be
+    replaced with ``--force``."""
     out = Path(out)
     pre = sorted(_tree(out) - {MANIFEST})
-    _write_json(out / MANIFEST, {"preexisting": pre, "created": []})
+    _write_json(out / MANIFEST, {"preexisting": pre, "created": sorted(set(planned) - set(pre) - {MANIFEST})})
 
 
 def update_manifest(out: Path) -> None:
@@ -245,9 +254,8 @@ def claim_run_dir(out: Path, sc: scenario_mod.Scenario, seed: int | None, durati
                          "an earlier version): --force removes only what a run recorded there; choose another "
                          "folder, or empty this one yourself")
     # what the new run writes must not meet a file that no earlier run there created (the user's)
-    names = [*RUN_FILES, "sumo/routes.rou.xml", "sumo/run.sumocfg", "sumo/queues.add.xml",
-             f"sumo/{sc.network_path.name}", *(name for _, name in route_copies(sc))]
-    clash = sorted(n for n in names if (out / n).exists() and n not in set(m["created"]))
+    clash = sorted(n for n in run_file_names(sc) if n != "sumo" and (out / n).exists()
+                   and n not in set(m["created"]))
     if clash:
         raise ValueError(f"--out {out} holds {', '.join(clash)}, which no earlier run there created (files of your "
                          "own?): a run would write over them; choose another folder")

@@ -688,3 +688,27 @@ def test_force_does_not_write_over_files_no_earlier_run_created(tmp_path, capsys
             capsys.readouterr()
             assert main(base + ["--out", str(o), *force]) == 2, (case, force)
             assert (o / "vehicles.csv").read_text() == "mine\n"
+
+
+def test_a_run_killed_outright_can_be_replaced_with_force(tmp_path):
+    """A run killed with SIGKILL as soon as its summary says "running" (no checkpoint, no clean-up):
+    its manifest already lists the files it writes, so ``--force`` replaces it; a file of the
+    user's beside it stays."""
+    out = tmp_path / "o"
+    cmd = [sys.executable, "-m", "runners.cli", "run", str(CROSS4), "--out", str(out), "--no-progress",
+           "--duration", "300"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / "summary.json").is_file() and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.05)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    assert json.loads((out / "summary.json").read_text())["status"] == "running"
+    (out / "notes.txt").write_text("mine")
+    assert main(["run", str(CROSS4), "--out", str(out), "--no-progress", "--duration", "4", "--force",
+                 "--set", "outputs.warmup_s=0"]) == 0
+    assert (out / "notes.txt").read_text() == "mine"
+    assert json.loads((out / "summary.json").read_text())["status"] == "ok"
