@@ -870,7 +870,7 @@ def load(path: str | Path, overrides: list[str] | tuple[str, ...] = (), allow_ou
     if not path.is_file():
         raise ScenarioError(f"scenario file not found: {path}")
     try:
-        data = tomllib.loads(path.read_bytes().decode("utf-8"))
+        data = tomllib.loads(path.read_bytes().decode("utf-8-sig"))  # (past a byte-order mark: some editors write one)
     except UnicodeDecodeError as exc:
         raise ScenarioError(f"{path}: not a UTF-8 text file (byte {exc.start}): a scenario is TOML text") from None
     except OSError as exc:

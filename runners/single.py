@@ -246,13 +246,14 @@ def claim_run_dir(out: Path, sc: scenario_mod.Scenario, seed: int | None, durati
     except (OSError, ValueError):
         pass
     m = read_manifest(out)
-    if not (same or force):
+    if not (same or force) and m is not None:
         raise ValueError(f"--out {out} is not empty and is not a finished run of this configuration: "
                          "choose another folder, or --force to replace the run in it")
     if m is None:
         raise ValueError(f"--out {out} is not empty and holds no run's {MANIFEST} (files of your own, or a run of "
-                         "an earlier version): --force removes only what a run recorded there; choose another "
-                         "folder, or empty this one yourself")
+                         "an earlier version): a run is written only into an empty folder or over a run that "
+                         "recorded its files there (--force removes those alone); choose another folder, or empty "
+                         "this one yourself")
     # what the new run writes must not meet a file that no earlier run there created (the user's)
     clash = sorted(n for n in run_file_names(sc) if n != "sumo" and (out / n).exists()
                    and n not in set(m["created"]))

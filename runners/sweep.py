@@ -30,6 +30,7 @@ import os
 import shutil
 import threading
 import uuid
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -125,6 +126,9 @@ def parse_seeds(text: str) -> list[int]:
     bad = [x for x in seeds if not 0 <= x <= 2**31 - 1]
     if bad:
         raise SweepError(f"--seeds {text!r}: seeds are 0 to 2^31 - 1, got {bad[0]}")
+    twice = sorted(x for x, n in Counter(seeds).items() if n > 1)
+    if twice:  # (the same run twice would count as two samples: intervals narrower than they are)
+        raise SweepError(f"--seeds {text!r}: seed {twice[0]} is given twice; give each seed once")
     return seeds
 
 

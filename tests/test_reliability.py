@@ -494,6 +494,9 @@ def test_a_sweep_too_large_or_with_an_unreachable_scheduler_is_refused_in_one_li
     line with exit 2, not a traceback from Dask."""
     assert main(["sweep", str(CROSS4), "--seeds", "0:30000", "--out", str(tmp_path / "a"), "--no-progress"]) == 2
     assert "30001 runs, more than 20000" in capsys.readouterr().err
+    # one seed twice would be one run counted as two samples (intervals of "± 0")
+    assert main(["sweep", str(CROSS4), "--seeds", "1,2,1", "--out", str(tmp_path / "a"), "--no-progress"]) == 2
+    assert "seed 1 is given twice" in capsys.readouterr().err
     assert main(["sweep", str(CROSS4), "--seeds", "1:2", "--duration", "5", "--set", "outputs.warmup_s=0", "--scheduler", "tcp://127.0.0.1:1",
                  "--out", str(tmp_path / "b"), "--no-progress"]) == 2
     err = capsys.readouterr().err

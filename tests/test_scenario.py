@@ -47,6 +47,14 @@ def test_missing_network_and_malformed_file(tmp_path, paper_curved_path):
         scenario.load(tmp_path / "none.toml")
 
 
+def test_a_file_saved_with_a_byte_order_mark_reads_as_without(tmp_path, paper_curved_path):
+    """Some editors save UTF-8 with a byte-order mark; the file reads as the same scenario."""
+    f = _write(tmp_path, paper_curved_path, lambda s: s)
+    plain = scenario.load(f)
+    f.write_bytes(b"\xef\xbb\xbf" + f.read_bytes())
+    assert scenario.load(f) == plain
+
+
 def test_overrides_and_resolved_round_trip(tmp_path, paper_curved_path):
     sc = scenario.load(paper_curved_path, ["controller.horizon_s=0.3", 'scenario.network="straight.net.xml"'])
     assert sc.controller.horizon_s == 0.3 and sc.network_path.name == "straight.net.xml"
