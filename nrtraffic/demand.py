@@ -121,7 +121,8 @@ class Demand:
         """``demand.sumo_routes``: the files' departures (trips routed by duarouter) from
         ``scenario.begin_s`` on, measured from it, each on its whole route, named by the movements
         it takes joined with "+" and "~k" (the k-th route with those crossings); :attr:`itineraries`
-        and :attr:`file_routes`."""
+        and :attr:`file_routes`. With ``demand.depart_offset_s``, each departure is later by a
+        uniform random time up to it, drawn from the run's seed."""
         from nrtraffic.sumo.demandfile import merged, read_sumo_demand, routed
         from nrtraffic.sumo.network import read_net
 
@@ -137,8 +138,9 @@ class Demand:
         variants: dict[tuple, int] = {}  # crossings -> routes named for them so far
         veh = []
         classes: dict[str, int] = {}
-        for vid, legs, t, v0, pos, edges, lane, vclass in read:
-            t -= t0
+        offsets = rng.uniform(0.0, d.depart_offset_s, len(read)) if d.depart_offset_s > 0 else np.zeros(len(read))
+        for (vid, legs, t, v0, pos, edges, lane, vclass), extra in zip(read, offsets.tolist()):
+            t += extra - t0  # (SUMO's --random-depart-offset, drawn from the run's seed)
             if t < -1e-9:  # (before the run's start: SUMO does not insert it either)
                 continue
             key = named.get((legs, edges))

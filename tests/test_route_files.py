@@ -227,3 +227,27 @@ def test_a_listed_vehicle_with_a_generated_vehicles_id_is_refused(tmp_path):
                                                        'depart_s = 50.0\n')
     r = _run(["run", d / "scenario.toml", "--duration", "60", "--out", tmp_path / "o"])
     assert r.returncode == 2 and "vehicle id 'N_in.0' is given twice" in r.stderr, r.stderr
+
+
+def test_a_depart_offset_makes_seeds_of_a_route_file_differ_and_keeps_each_seed_the_same():
+    """demand.depart_offset_s = 30 (SUMO's --random-depart-offset) on tee3's route file: every
+    departure is the file's plus an offset in [0, 30] s; seeds 1 and 2 differ, seed 1 twice is the
+    same; without it every seed gives the file's own times. (A run and its baselines build the
+    demand the same way, so they share each seed's offsets.)"""
+    from conftest import SCENARIOS
+
+    from nrtraffic import scenario
+    from nrtraffic.demand import Demand
+
+    toml = SCENARIOS / "tee3" / "routes.toml"
+    plain = scenario.load(toml)
+    shifted = scenario.load(toml, ["demand.depart_offset_s=30.0"])
+    times = lambda sc, seed: {v: t for v, _, t, *_ in Demand.of(sc, seed, 300.0).departures()}  # noqa: E731
+    base, a, b = times(plain, 1), times(shifted, 1), times(shifted, 2)
+    assert times(plain, 2) == base and times(shifted, 1) == a
+    common = set(base) & set(a) & set(b)
+    assert len(common) > 20
+    assert all(0.0 <= a[v] - base[v] <= 30.0 and 0.0 <= b[v] - base[v] <= 30.0 for v in common)
+    assert sum(abs(a[v] - b[v]) > 1e-6 for v in common) > 0.9 * len(common)
+    with pytest.raises(scenario.ScenarioError, match="depart_offset_s shifts the departures of demand.sumo_routes"):
+        scenario.load(SCENARIOS / "tee3" / "scenario.toml", ["demand.depart_offset_s=30.0"])
