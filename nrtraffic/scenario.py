@@ -805,7 +805,11 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
         if not sc.controlled_junctions():
             raise ScenarioError("demand.sumo_routes needs a [junction] id or [[junctions]] (its vehicles' crossings are "
                                 "the movements of those junctions that their routes take)")
-        for routes in sc.demand.route_files(sc.base_dir):
+        files = sc.demand.route_files(sc.base_dir)
+        twice = sorted({f.name for f in files if files.count(f) > 1})
+        if twice:  # (its vehicles would all be there twice)
+            raise ScenarioError(f"demand.sumo_routes names {twice[0]} twice: give each file once")
+        for routes in files:
             if not allow_outside and not routes.is_relative_to(sc.base_dir):
                 raise ScenarioError(f"demand.sumo_routes = {sc.demand.sumo_routes!r} lies outside the scenario's folder "
                                     f"{sc.base_dir} (allowed only with --allow-outside)")

@@ -223,8 +223,11 @@ def replay(run_dir: Path, out: Path | None = None, rtol: float = RTOL, atol: flo
                 run_baseline(sc, recorded["junction_type"], out, progress=progress)
             else:
                 run_scenario(sc, out, progress=progress)
-        except RunFailed:
+        except RunFailed as exc:
             if recorded.get("status") == "ok":
+                if tmp is not None:  # (its temporary folder goes with it: nothing is kept to point at)
+                    exc.result.run_dir = None
+                    exc.args = (f"{exc} (a replay without --out keeps nothing; give --out to keep what it finished)",)
                 raise
             # the recorded run failed too: compare what both finished
         return compare_runs(run_dir, out, rtol, atol), (None if tmp else Path(out))

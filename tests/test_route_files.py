@@ -251,3 +251,12 @@ def test_a_depart_offset_makes_seeds_of_a_route_file_differ_and_keeps_each_seed_
     assert sum(abs(a[v] - b[v]) > 1e-6 for v in common) > 0.9 * len(common)
     with pytest.raises(scenario.ScenarioError, match="depart_offset_s shifts the departures of demand.sumo_routes"):
         scenario.load(SCENARIOS / "tee3" / "scenario.toml", ["demand.depart_offset_s=30.0"])
+
+
+def test_one_route_file_named_twice_is_refused_naming_it():
+    from conftest import SCENARIOS
+
+    from nrtraffic import scenario
+
+    with pytest.raises(scenario.ScenarioError, match="demand.sumo_routes names flows.rou.xml twice"):
+        scenario.load(SCENARIOS / "tee3" / "routes.toml", ['demand.sumo_routes="flows.rou.xml, ./flows.rou.xml"'])
