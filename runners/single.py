@@ -173,7 +173,7 @@ MANIFEST = "manifest.json"
 RUN_FILES = ("summary.json", "vehicles.csv", "movements.csv", "approaches.csv", "trajectories.parquet",
              "trajectories.parquet.tmp", "trajectories.partial.arrows", "scenario.resolved.toml", "movements.json",
              "movements.png", "delays.png", "queues.png", "time_space.png", "arterial.png", "report.html", "tripinfo.xml",
-             "collisions.xml", "fcd.xml", "queues.xml", "summary.json.tmp", "vehicles.csv.tmp", "movements.csv.tmp",
+             "collisions.xml", "fcd.xml", "queues.xml", "movements.json.tmp", "summary.json.tmp", "vehicles.csv.tmp", "movements.csv.tmp",
              "approaches.csv.tmp")
 
 

@@ -288,7 +288,13 @@ def write_movements(path: Path, paths: dict[str, Movement], junctions: dict[str,
         doc["merging_zone"] = next(iter(zones.values()))
     elif zones:
         doc["merging_zones"] = zones
-    path.write_text(json.dumps(doc, indent=1) + "\n")
+    tmp = path.with_name(path.name + ".tmp")  # (whole or not at all: a full disk leaves no half of it)
+    try:
+        tmp.write_text(json.dumps(doc, indent=1) + "\n")
+        tmp.replace(path)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def queue_detectors(sc, layout: Layout, network_path: Path, workdir: Path, sdir: Path,
