@@ -984,7 +984,13 @@ def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]
         raise SweepError(str(exc)) from None
     check_resume(jobs, force=force)
     remove_stale(out)
-    return run_sweep(jobs, out, workers=workers, scheduler=scheduler, progress=progress, batch=batch)
+    try:
+        return run_sweep(jobs, out, workers=workers, scheduler=scheduler, progress=progress, batch=batch)
+    except KeyboardInterrupt:
+        # the runs it stopped leave only their temporary folders, which say "running": gone with
+        # their workers (a resume runs them again), so that nothing of them looks like a result
+        remove_stale(out)
+        raise
 
 
 def main(args) -> int:
