@@ -253,9 +253,11 @@ def scale_figure(rows: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
-def scale_section(duration_s: float, figure: Path | None) -> list[str]:
-    """The scale benchmark's table (grids of ``SCALE_SIDES``), and its figure at ``figure``."""
+def scale_section(duration_s: float, figure: Path | None, district_hour: bool = True) -> list[str]:
+    """The scale benchmark's table (grids of ``SCALE_SIDES``), and its figure at ``figure``; with
+    ``district_hour``, the 16-junction grid also for an hour."""
     rows = [bench_scale(n, duration_s) for n in SCALE_SIDES]
+    hour = bench_scale(4, 3600.0) if district_hour else None  # the 16-junction district for an hour
     if figure is not None:
         scale_figure(rows, figure)
     one = rows[0]["loop_s"] / rows[0]["vehicle_steps"]
@@ -274,6 +276,12 @@ def scale_section(duration_s: float, figure: Path | None) -> list[str]:
                      f"{per / one:.2f} x | {r['sim_time_s'] / r['cosim_wall_s']:.1f} | "
                      f"{r['sim_time_s'] / r['sumo_wall_s']:.0f} | {r['cosim_wall_s'] / r['sumo_wall_s']:.1f} x | "
                      f"{r['peak_rss_mib']:.0f} MiB | {r['collisions']} | {100 * r['served']:.1f} % |")
+    if hour is not None:
+        lines += ["", f"The 16-junction district for an hour: real-time factor "
+                  f"{hour['sim_time_s'] / hour['cosim_wall_s']:.1f} ({hour['cosim_wall_s']:.0f} s wall, set-up and "
+                  f"results included), {hour['admitted']} vehicles admitted, {hour['at_once']:.1f} controlled at once, "
+                  f"peak memory {hour['peak_rss_mib']:.0f} MiB, {hour['collisions']} collisions, served "
+                  f"{100 * hour['served']:.1f} %."]
     lines += ["", "Per controlled vehicle-step, by phase [us]:", "",
               "| junctions | " + " | ".join(LOOP_PHASES) + " |", "|---|" + "---|" * len(LOOP_PHASES)]
     for r in rows:
@@ -389,8 +397,8 @@ def run_all(quick: bool = False) -> str:
 def main(args) -> int:
     if args.scale:
         write = Path(args.write or "bench/scale.md")
-        table = "\n".join(["# nrtraffic scale benchmark", "", *scale_section(120.0 if args.quick else 600.0,
-                                                                                write.with_suffix(".png"))]) + "\n"
+        table = "\n".join(["# nrtraffic scale benchmark", "", *scale_section(
+            120.0 if args.quick else 600.0, write.with_suffix(".png"), district_hour=not args.quick)]) + "\n"
         print(table)
         write.write_text(table)
         return 0
