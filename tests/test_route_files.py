@@ -260,3 +260,22 @@ def test_one_route_file_named_twice_is_refused_naming_it():
 
     with pytest.raises(scenario.ScenarioError, match="demand.sumo_routes names flows.rou.xml twice"):
         scenario.load(SCENARIOS / "tee3" / "routes.toml", ['demand.sumo_routes="flows.rou.xml, ./flows.rou.xml"'])
+
+
+def test_a_route_over_a_bus_lane_is_refused_before_sumo_starts_naming_vehicle_and_edge(tmp_path):
+    """bologna_pasubio's edge 27 is bus-only: a vehicle of the route file routed onto it (the source
+    file did, with a class that ignores permissions) cannot drive as nrtraffic's passenger car.
+    Before, SUMO stopped the run at its insertion with exit 1; now exit 2 before SUMO starts,
+    naming the vehicle, the edge and the fix."""
+    from conftest import SCENARIOS
+
+    d = tmp_path / "sc"
+    d.mkdir()
+    for f in (SCENARIOS / "bologna_pasubio").iterdir():
+        (d / f.name).write_bytes(f.read_bytes())
+    (d / "demand.rou.xml").write_text('<routes>\n  <vehicle id="car" depart="0"><route edges="23 27"/></vehicle>\n'
+                                      '</routes>\n')
+    r = _run(["run", d, "--duration", "30", "--set", "outputs.warmup_s=0", "--out", tmp_path / "out"])
+    assert r.returncode == 2, r.stderr
+    assert "<vehicle id='car'>: its route uses edge '27', on which a passenger car may not drive" in r.stderr
+    assert "leave such vehicles out of the file" in r.stderr and not (tmp_path / "out" / "summary.json").exists()

@@ -28,6 +28,9 @@ class DemandFileError(ValueError):
     """The demand file cannot be read or names what the junction does not have."""
 
 
+CAR_CLASS = "passenger"  # SUMO's vehicle class of nrtraffic's car (the lanes it may use)
+
+
 def _num(el, key: str, where: str, default=None) -> float:
     v = el.get(key)
     if v is None:
@@ -167,6 +170,19 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
                 if not any(o.getID() == b for o in net.getEdge(a).getOutgoing()):
                     raise DemandFileError(f"{where}: its route goes from edge {a!r} to {b!r}, which the network does "
                                           "not connect (give the edges between them, or a trip to route)")
+            for e in edges:  # (every vehicle drives as nrtraffic's car: a passenger car)
+                if not any(lane.allows(CAR_CLASS) for lane in net.getEdge(e).getLanes()):
+                    raise DemandFileError(f"{where}: its route uses edge {e!r}, on which a {CAR_CLASS} car may not "
+                                          "drive (its lanes are for other vehicle classes, a bus lane, say), and every "
+                                          "vehicle of the file drives as nrtraffic's passenger car: leave such "
+                                          "vehicles out of the file, or route them around it")
+            for a, b in zip(edges, edges[1:]):
+                if not any(c.getFromLane().allows(CAR_CLASS) and c.getToLane().allows(CAR_CLASS)
+                           for c in net.getEdge(a).getOutgoing()[net.getEdge(b)]):
+                    raise DemandFileError(f"{where}: its route turns from edge {a!r} onto {b!r} over lanes a "
+                                          f"{CAR_CLASS} car may not use, and every vehicle of the file drives as "
+                                          "nrtraffic's passenger car: leave such vehicles out of the file, or route "
+                                          "them around it")
             checked.add(tuple(edges))
         legs = tuple(movements[(a, b)] for a, b in zip(edges, edges[1:]) if (a, b) in movements)
         if not legs:
