@@ -715,3 +715,15 @@ def test_a_run_killed_outright_can_be_replaced_with_force(tmp_path):
                  "--set", "outputs.warmup_s=0"]) == 0
     assert (out / "notes.txt").read_text() == "mine"
     assert json.loads((out / "summary.json").read_text())["status"] == "ok"
+
+
+def test_an_approach_that_starts_inside_the_merging_zone_is_refused_naming_the_size_that_fits(tmp_path, capsys):
+    """cross4_short's arms are 50 m from the centre: a 120 m merging zone swallows their start. The
+    message names the approach, where it starts, and the largest merging zone that fits (it said
+    only that the path "does not enter the merging zone from outside")."""
+    out = tmp_path / "o"
+    assert main(["run", str(SCENARIOS / "cross4_short"), "--set", "zones.merging_zone_m=120", "--set",
+                 "outputs.warmup_s=0", "--duration", "5", "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "its approach E_in starts 50.0 m from junction C's centre, inside the merging zone" in err
+    assert "set zones.merging_zone_m to at most 98 m" in err and not (out / "summary.json").exists()

@@ -77,8 +77,19 @@ def build_paths(sc, layout: Layout, sumo, params, control: bool) -> tuple[dict[s
         if j.xy is not None:
             # merging zone: the disc of diameter merging_zone_m around the junction centre
             inside = np.flatnonzero(j.in_merging_zone(path.xy))
-            if inside.size == 0 or inside[0] == 0:
-                raise ValueError(f"movement {name}: its path does not enter the merging zone from outside")
+            if inside.size == 0:
+                raise ValueError(f"movement {name}: its path does not reach junction {j.id}'s merging zone ({key} "
+                                 f"= {j.merging_zone_m:g} m around its centre)")
+            if inside[0] == 0:  # (its approach starts inside the zone: a short link from the node before it)
+                r0 = float(np.hypot(*(path.xy[0] - np.asarray(j.xy))))
+                internal = [shape for ln, shape, _ in lanes if ln.startswith(":")]
+                reach = max((float(np.hypot(*(np.asarray(sh) - j.xy).T).max()) for sh in internal), default=0.0)
+                fix = (f"set {key} to at most {2.0 * math.floor(r0 - 1.0):g} m" if reach + 1.0 < r0 - 1.0 else
+                       f"the junction's own lanes reach {reach:.1f} m from its centre, so no merging zone fits both: "
+                       f"join it with the node before it into one junction (netconvert --junctions.join, or a "
+                       f"<join nodes=...> in a node file) and control that one")
+                raise ValueError(f"movement {name}: its approach {appr} starts {r0:.1f} m from junction {j.id}'s "
+                                 f"centre, inside the merging zone ({key} = {j.merging_zone_m:g} m): {fix}")
             s_m, s_x = float(path.s[inside[0]]), float(path.s[min(inside[-1], len(path.s) - 1)])
         else:
             a = merge_at[rname]
