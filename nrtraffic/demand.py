@@ -121,8 +121,10 @@ class Demand:
         """``demand.sumo_routes``: the files' departures (trips routed by duarouter) from
         ``scenario.begin_s`` on, measured from it, each on its whole route, named by the movements
         it takes joined with "+" and "~k" (the k-th route with those crossings); :attr:`itineraries`
-        and :attr:`file_routes`. With ``demand.depart_offset_s``, each departure is later by a
-        uniform random time up to it, drawn from the run's seed."""
+        and :attr:`file_routes`. With ``demand.scale``, each vehicle is there ``int(scale)``
+        times and once more with the chance of the fraction (the copies named ``<id>#<k>``; SUMO's
+        ``--scale``); with ``demand.depart_offset_s``, each departure is later by a uniform random
+        time up to it; both drawn from the run's seed."""
         from nrtraffic.sumo.demandfile import merged, read_sumo_demand, routed
         from nrtraffic.sumo.network import read_net
 
@@ -138,6 +140,11 @@ class Demand:
         variants: dict[tuple, int] = {}  # crossings -> routes named for them so far
         veh = []
         classes: dict[str, int] = {}
+        if d.scale != 1.0:  # SUMO's --scale: each vehicle int(scale) times, and once more with the rest's chance
+            whole, rest = divmod(d.scale, 1.0)
+            copies = int(whole) + (rng.random(len(read)) < rest)
+            read = [(vid if k == 0 else f"{vid}#{k}", *v[1:]) for (vid, *_), v, n in zip(read, read, copies.tolist())
+                    for k in range(n)]
         offsets = rng.uniform(0.0, d.depart_offset_s, len(read)) if d.depart_offset_s > 0 else np.zeros(len(read))
         for (vid, legs, t, v0, pos, edges, lane, vclass), extra in zip(read, offsets.tolist()):
             t += extra - t0  # (SUMO's --random-depart-offset, drawn from the run's seed)

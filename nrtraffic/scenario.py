@@ -211,6 +211,7 @@ class Demand:
     intervals: tuple[DemandInterval, ...] = ()  # periods with scaled demand (a peak)
     sumo_routes: str = ""  # SUMO demand files (.rou.xml: flows, trips, vehicles; several separated by commas, as SUMO's route-files) instead of the keys above
     controlled_share: float = 1.0  # share of the vehicles that are controlled; the others are [human] drivers
+    scale: float = 1.0  # with sumo_routes: the file's vehicles scaled by this factor, each kept, copied or left out at random by the run's seed (SUMO's --scale)
     depart_offset_s: float = 0.0  # with sumo_routes: each departure later by a random time up to this, drawn from the run's seed (SUMO's --random-depart-offset), so that seeds differ [s]
 
     def validate(self) -> None:
@@ -615,7 +616,7 @@ RANGES: dict[str, dict[str, tuple[float, float]]] = {
     "demand": {"entry_speed_mps": (0.0, 70.0), "mean_headway_s": (0.0, _DAY_S), "rate_veh_h": (0.0, 20000.0),
                "turn_left": (0.0, 1.0), "turn_right": (0.0, 1.0), "min_headway_s": (0.0, 3600.0),
                "max_vehicles": (0, 10_000_000), "begin_s": (0.0, 366 * _DAY_S), "end_s": (0.0, 366 * _DAY_S),
-               "controlled_share": (0.0, 1.0), "depart_offset_s": (0.0, 3600.0)},
+               "controlled_share": (0.0, 1.0), "depart_offset_s": (0.0, 3600.0), "scale": (0.0, 100.0)},
     "demand.flows": {k: (0.0, 20000.0) for k in ("left", "straight", "right", "u_turn")},
     "demand.intervals": {"begin_s": (0.0, 366 * _DAY_S), "end_s": (0.0, 366 * _DAY_S), "scale": (0.0, 100.0)},
     "human": {"accel_mps2": (0.1, 10.0), "decel_mps2": (0.1, 15.0), "sigma": (0.0, 1.0), "tau_s": (0.01, 10.0),
@@ -820,6 +821,9 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
     elif sc.demand.depart_offset_s > 0:
         raise ScenarioError("demand.depart_offset_s shifts the departures of demand.sumo_routes, and there is none: "
                             "leave it out (the random arrivals of rate_veh_h and flows differ by seed already)")
+    elif sc.demand.scale != 1.0:
+        raise ScenarioError("demand.scale scales the vehicles of demand.sumo_routes, and there is none: scale "
+                            "demand.rate_veh_h or the flows themselves, or give a [[demand.intervals]] scale")
     if sc.demand.controlled_share < 1.0:
         if not sc.controlled_junctions():
             raise ScenarioError("demand.controlled_share < 1 needs a [junction] (human drivers stop at its "

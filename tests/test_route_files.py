@@ -279,3 +279,29 @@ def test_a_route_over_a_bus_lane_is_refused_before_sumo_starts_naming_vehicle_an
     assert r.returncode == 2, r.stderr
     assert "<vehicle id='car'>: its route uses edge '27', on which a passenger car may not drive" in r.stderr
     assert "leave such vehicles out of the file" in r.stderr and not (tmp_path / "out" / "summary.json").exists()
+
+
+def test_demand_scale_keeps_copies_or_leaves_out_a_route_files_vehicles_as_sumos_scale():
+    """demand.scale on tee3's route file: 2 gives every vehicle twice (its copy ``<id>#1``, same
+    departure and route); 1.5 every vehicle once and about half of them twice; 0.5 about half of
+    them; each drawn from the seed (one seed the same twice, two seeds different)."""
+    from conftest import SCENARIOS
+
+    from nrtraffic import scenario
+    from nrtraffic.demand import Demand
+
+    toml = SCENARIOS / "tee3" / "routes.toml"
+    deps = lambda scale, seed: {v: (r, t) for v, r, t, *_ in Demand.of(  # noqa: E731
+        scenario.load(toml, [f"demand.scale={scale}"]), seed, 600.0).departures()}
+    base = deps(1.0, 1)
+    n = len(base)
+    assert n > 50
+    two = deps(2.0, 1)
+    assert len(two) == 2 * n and all(two[f"{v}#1"] == base[v] and two[v] == base[v] for v in base)
+    up, up2 = deps(1.5, 1), deps(1.5, 2)
+    assert set(base) <= set(up) and abs(len(up) - 1.5 * n) < 4 * (0.25 * n) ** 0.5  # binomial: 4 sd
+    assert deps(1.5, 1) == up and set(up) != set(up2)
+    half = deps(0.5, 1)
+    assert set(half) < set(base) and abs(len(half) - 0.5 * n) < 4 * (0.25 * n) ** 0.5
+    with pytest.raises(scenario.ScenarioError, match="demand.scale scales the vehicles of demand.sumo_routes"):
+        scenario.load(SCENARIOS / "tee3" / "scenario.toml", ["demand.scale=1.5"])
