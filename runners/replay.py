@@ -96,6 +96,13 @@ def _compare_frames(where: str, rec: pd.DataFrame, new: pd.DataFrame, keys: list
     for c in sorted(set(rec.columns) ^ set(new.columns)):
         out.append(Difference(where, f"column {c}", "present" if c in rec else "absent",
                               "present" if c in new else "absent"))
+    for name, t in (("recorded", rec), ("replayed", new)):
+        twice = t.duplicated(keys)
+        if twice.any():  # (rows that share their keys cannot be matched one to one: an edited file)
+            row = t[twice].iloc[0]
+            out.append(Difference(where, f"{_label(keys, tuple(row[k] for k in keys))}",
+                                  f"{name}: {int(twice.sum())} row(s) repeat their {', '.join(keys)}", "once each"))
+            return out
     rec_i, new_i = rec.set_index(keys), new.set_index(keys)
     missing = rec_i.index.difference(new_i.index)
     extra = new_i.index.difference(rec_i.index)

@@ -385,6 +385,9 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
                 except (OSError, TimeoutError, ValueError) as exc:
                     raise SweepError(f"--scheduler {scheduler}: cannot reach it within {SCHEDULER_TIMEOUT_S:g} s "
                                      f"({type(exc).__name__}): start it, or check the address") from None
+                except Exception as exc:  # noqa: BLE001 - something answered, not a Dask scheduler
+                    raise SweepError(f"--scheduler {scheduler}: what answers there is not a Dask scheduler "
+                                     f"({type(exc).__name__}): check the address and port") from None
             elif batch is not None:
                 from runners.clusters import make_cluster
 
@@ -978,6 +981,7 @@ def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]
     jobs = plan(scenario_path, seeds, grid, controls, out, duration_s, tuple(overrides), allow_outside=allow_outside)
     from runners.api import OutputError, writable_dir
 
+    created = not Path(out).exists()
     try:
         writable_dir(Path(out))  # (created only now: a sweep refused above leaves nothing)
     except OutputError as exc:
@@ -986,6 +990,10 @@ def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]
     remove_stale(out)
     try:
         return run_sweep(jobs, out, workers=workers, scheduler=scheduler, progress=progress, batch=batch)
+    except SweepError:  # (a scheduler it cannot use: the folder it made for nothing goes again)
+        if created and Path(out).is_dir() and not any(Path(out).iterdir()):
+            Path(out).rmdir()
+        raise
     except KeyboardInterrupt:
         # the runs it stopped leave only their temporary folders, which say "running": gone with
         # their workers (a resume runs them again), so that nothing of them looks like a result

@@ -220,6 +220,9 @@ def _scenario_copy(tmp_path, old=None, new=None, extra=""):
      "-C (--save-configuration) would write files outside the run folder"),
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--netstate-dump=n.xml"]', "",
      "--netstate-dump=n.xml would write files outside the run folder"),
+    # SUMO's other long names of an option (it wrote the file; it was refused as unknown)
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--ndump", "n.xml"]', "",
+     "--ndump (--netstate-dump) would write files outside the run folder"),
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["-q"]', "", "no option -q"),
     # device and state options that write files of their own into the working folder
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--device.ssm.probability", "1"]', "",
@@ -501,6 +504,43 @@ def test_a_sweep_too_large_or_with_an_unreachable_scheduler_is_refused_in_one_li
                  "--out", str(tmp_path / "b"), "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert "cannot reach it" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "b").exists()  # (refused: nothing written)
+
+
+def test_a_scheduler_address_where_something_else_answers_is_refused_in_one_line(tmp_path, capsys):
+    """A server that is not Dask's (here one answering HTTP 403) at --scheduler: Dask's client read
+    its reply as a frame of exabytes (a numpy MemoryError traceback); now exit 2 in one line."""
+    import socket
+    import threading
+
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(8)
+    port = srv.getsockname()[1]
+
+    def answer():
+        while True:
+            try:
+                conn, _ = srv.accept()
+            except OSError:
+                return
+            try:
+                conn.sendall(b"HTTP/1.1 403 Forbidden\r\nContent-Length: 0\r\n\r\n" * 64)
+            except OSError:
+                pass
+            finally:
+                conn.close()
+
+    threading.Thread(target=answer, daemon=True).start()
+    try:
+        code = main(["sweep", str(CROSS4), "--seeds", "1", "--duration", "5", "--set", "outputs.warmup_s=0",
+                     "--scheduler", f"tcp://127.0.0.1:{port}", "--out", str(tmp_path / "c"), "--no-progress"])
+    finally:
+        srv.close()
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1 and "--scheduler" in err
+    assert not (tmp_path / "c").exists()
 
 
 @pytest.mark.parametrize("fills_after", [1, 2, 3, 4])  # (a 30 s run writes 4 files: 4 is the last summary)

@@ -135,3 +135,16 @@ def test_a_stopped_run_is_not_replayed(tmp_path, capsys):
     (run / "summary.json").write_text(json.dumps({**s, "status": "failed", "error": "terminated by SIGTERM"}))
     assert main(["replay", str(run), "--no-progress"]) == 2
     assert "is not a finished run (summary.json status 'failed')" in capsys.readouterr().err
+
+
+def test_a_recorded_table_whose_rows_repeat_their_keys_differs_rather_than_failing():
+    """An edited trajectories table in which one (vehicle_id, t) appears twice cannot be matched row
+    by row: the comparison says so as a difference (it raised a broadcasting ValueError)."""
+    from runners.replay import _compare_frames
+
+    new = pd.DataFrame({"vehicle_id": ["a", "a", "b"], "t": [0.0, 0.5, 0.0], "x": [1.0, 2.0, 3.0]})
+    rec = new.copy()
+    rec.loc[1, "t"] = 0.0  # (row 1 now repeats row 0's keys)
+    diffs = _compare_frames("trajectories", rec, new, ["vehicle_id", "t"], 1e-9, 1e-9, 40)
+    assert len(diffs) == 1 and "repeat their vehicle_id, t" in str(diffs[0].recorded)
+    assert _compare_frames("trajectories", new, new.copy(), ["vehicle_id", "t"], 1e-9, 1e-9, 40) == []

@@ -186,8 +186,22 @@ def sumo_options() -> dict[str, str]:
         exe = sumo_binary("sumo")
         xml = subprocess.run([str(exe), "--save-template", "stdout"], capture_output=True, text=True, check=True).stdout
         for section in ET.fromstring(xml[xml.index("<"):]):
-            _SUMO_OPTIONS.update((opt.tag, opt.get("type", "STR")) for opt in section)
+            for opt in section:
+                _SUMO_OPTIONS[opt.tag] = opt.get("type", "STR")
+                for syn in opt.get("synonymes", "").split():  # (--ndump is --netstate-dump)
+                    if len(syn) > 1:
+                        _SUMO_SYNONYMS[syn] = opt.tag
     return _SUMO_OPTIONS
+
+
+_SUMO_SYNONYMS: dict[str, str] = {}
+
+
+def sumo_option_name(name: str) -> str:
+    """The name of SUMO's option ``name`` stands for (``"ndump"`` -> ``"netstate-dump"``); itself
+    where it is no other's synonym."""
+    sumo_options()
+    return _SUMO_SYNONYMS.get(name, name)
 
 
 # SUMO options that leave the run nothing to control or nothing to run
@@ -274,6 +288,13 @@ RUN_SETS = {
 }
 
 
+def _shown(item: str, name: str) -> str:
+    """An item of ``sumo.extra_args`` as the user gave it, with the option it stands for where that
+    is another name (``-l (--log)``, ``--ndump (--netstate-dump)``)."""
+    given = item[2:].split("=")[0] if item.startswith("--") else None
+    return item if given == name else f"{item} (--{name})"
+
+
 def check_sumo_args(args: tuple[str, ...]) -> None:
     """Every option in ``args`` (``sumo.extra_args``: ``--name``, ``--name=value`` or SUMO's
     one-letter ``-x``) must be one of SUMO's, and none may write a file: it would land outside the
@@ -284,7 +305,7 @@ def check_sumo_args(args: tuple[str, ...]) -> None:
 
     if not args:
         return
-    given = [(a, a[2:].split("=")[0]) for a in args if a.startswith("--")]
+    given = [(a, sumo_option_name(a[2:].split("=")[0])) for a in args if a.startswith("--")]
     short = [a for a in args if re.match(r"-[A-Za-z]", a)]
     letters = sumo_short_options()
     unknown = [a for a in short if a[1] not in letters]
@@ -303,7 +324,7 @@ def check_sumo_args(args: tuple[str, ...]) -> None:
                             f"--name)" if a.strip() else "an empty item")
             k += 1
             continue
-        name = a[2:].split("=")[0] if a.startswith("--") else letters[a[1]]
+        name = sumo_option_name(a[2:].split("=")[0]) if a.startswith("--") else letters[a[1]]
         kind = known[name]
         if "=" in a or (a.startswith("-") and not a.startswith("--") and len(a) > 2):
             value = a.split("=", 1)[1] if "=" in a else a[2:]
@@ -324,13 +345,13 @@ def check_sumo_args(args: tuple[str, ...]) -> None:
     if unfit:
         a, n = unfit[0]
         raise NetworkError(f"sumo.extra_args: {a}: {NOT_FOR_A_RUN[n]}; leave it out")
-    clock = [a if a.startswith("--") else f"{a} (--{n})" for a, n in given if n in ("begin", "end")]
+    clock = [_shown(a, n) for a, n in given if n in ("begin", "end")]
     if clock:
         raise NetworkError(f"sumo.extra_args: {', '.join(clock)} sets SUMO's clock, which the run keeps itself: "
                            "use scenario.begin_s for the start and scenario.duration_s (or --duration) for the length")
     for a, n in given:
         if n in RUN_SETS:
-            raise NetworkError(f"sumo.extra_args: {a if a.startswith('--') else f'{a} (--{n})'}: the run sets it "
+            raise NetworkError(f"sumo.extra_args: {_shown(a, n)}: the run sets it "
                                f"itself ({RUN_SETS[n]}); leave it out")
         if n.startswith("device.toc."):
             raise NetworkError(f"sumo.extra_args: {a}: SUMO's take-over device needs parameters of the vehicle type "
@@ -338,7 +359,7 @@ def check_sumo_args(args: tuple[str, ...]) -> None:
         if n in ("remote-port", "num-clients"):
             raise NetworkError(f"sumo.extra_args: {a}: SUMO would wait for a TraCI client of its own and the run "
                                "would never start; leave it out")
-    writing = [a if a.startswith("--") else f"{a} (--{n})" for a, n in given if n in sumo_writing_options()]
+    writing = [_shown(a, n) for a, n in given if n in sumo_writing_options()]
     if writing:
         raise NetworkError(f"sumo.extra_args: {', '.join(writing)} would write files outside the run folder; "
                            "leave it out (outputs.sumo_fcd = true writes fcd.xml into the run)")
