@@ -21,6 +21,7 @@ system) and have nrtraffic installed.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import itertools
 import logging
@@ -28,6 +29,7 @@ import json
 import math
 import os
 import shutil
+import signal
 import threading
 import uuid
 from collections import Counter
@@ -358,6 +360,21 @@ def _duration(s: float) -> str:
     return f"{s // 3600} h {s % 3600 // 60:02d} min"
 
 
+@contextlib.contextmanager
+def _workers_ignore_ctrl_c():
+    """The worker processes started inside ignore SIGINT (the disposition is inherited): a Ctrl-C
+    at the terminal reaches the whole process group, and it is the sweep's to stop them, not each
+    worker's to print its own traceback. Only in the main thread; elsewhere nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | None = None,
               progress: bool = True, figures=sweep_figures, batch=None) -> pd.DataFrame:
     """Run the jobs not yet finished on Dask, then write the tables and figures (``figures``, see
@@ -394,9 +411,10 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
                 cluster = make_cluster(batch, len(todo), out / "jobs")
                 client = Client(cluster)
             else:
-                cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                       dashboard_address=":0", memory_limit=0,
-                                       silence_logs=logging.CRITICAL)  # (a failed run is a row, not a traceback)
+                with _workers_ignore_ctrl_c():
+                    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                           dashboard_address=":0", memory_limit=0,
+                                           silence_logs=logging.CRITICAL)  # (a failed run is a row, not a traceback)
                 client = Client(cluster)
             try:
                 futures = {client.submit(run_job, j.spec(), retries=1, pure=False,
@@ -997,8 +1015,25 @@ def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]
     except KeyboardInterrupt:
         # the runs it stopped leave only their temporary folders, which say "running": gone with
         # their workers (a resume runs them again), so that nothing of them looks like a result
+        _close_clusters()
         remove_stale(out)
         raise
+
+
+def _close_clusters() -> None:
+    """Close every Dask cluster of this process that an interrupt left open, one stopped while it
+    started included, quietly; Dask's own closing of them at exit (which fails with a traceback on
+    one that never finished starting) is then not needed."""
+    import atexit
+
+    try:
+        from distributed.deploy.spec import SpecCluster, close_clusters
+    except ImportError:
+        return
+    for cluster in list(SpecCluster._instances):
+        with contextlib.suppress(Exception):
+            cluster.close(timeout=5)
+    atexit.unregister(close_clusters)
 
 
 def main(args) -> int:
