@@ -153,7 +153,36 @@ def compare_runs(recorded: Path, replayed: Path, rtol: float = RTOL, atol: float
             a, b = read_parquet_file(t_rec), read_parquet_file(t_new)
             a["vehicle_id"], b["vehicle_id"] = a["vehicle_id"].astype(str), b["vehicle_id"].astype(str)
             diffs += _compare_frames("trajectories.parquet", a, b, ["vehicle_id", "t"], rtol, atol, limit)
+    for name, keys in (("movements.csv", ["junction", "approach", "movement"]), ("approaches.csv", ["approach"])):
+        m_rec, m_new = recorded / name, replayed / name
+        if m_rec.is_file() != m_new.is_file():
+            diffs.append(Difference(name, "file", m_rec.is_file(), m_new.is_file()))
+        elif m_rec.is_file():
+            a, b = pd.read_csv(m_rec), pd.read_csv(m_new)
+            diffs += _compare_frames(name, a, b, [k for k in keys if k in a.columns and k in b.columns], rtol, atol,
+                                     limit, rounded=True)
+    r_rec, r_new = recorded / "sumo" / "routes.rou.xml", replayed / "sumo" / "routes.rou.xml"
+    if r_rec.is_file() and r_new.is_file():  # (the demand SUMO was given: rebuilt from the configuration)
+        diffs += _compare_frames("sumo/routes.rou.xml", _departures(r_rec), _departures(r_new), ["id"], rtol, atol,
+                                 limit)
     return diffs
+
+
+def _departures(path: Path) -> pd.DataFrame:
+    """Each vehicle of a run's route file: id, departure [s], departure lane, position and speed,
+    and its route's edges."""
+    import xml.etree.ElementTree as ET
+
+    root = ET.parse(path).getroot()
+    named = {r.get("id"): r.get("edges", "") for r in root.findall("route")}
+    rows = []
+    for v in root.iter("vehicle"):
+        inner = v.find("route")
+        rows.append({"id": v.get("id"), "depart": float(v.get("depart", "nan")), "route": v.get("route") or "",
+                     "edges": inner.get("edges", "") if inner is not None else named.get(v.get("route"), ""),
+                     **{k: v.get(k, "") for k in ("departLane", "departPos", "departSpeed", "type")}})
+    return pd.DataFrame(rows, columns=["id", "depart", "route", "edges", "departLane", "departPos", "departSpeed",
+                                       "type"])
 
 
 def _read_recorded(run_dir: Path) -> dict:

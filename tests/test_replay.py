@@ -148,3 +148,26 @@ def test_a_recorded_table_whose_rows_repeat_their_keys_differs_rather_than_faili
     diffs = _compare_frames("trajectories", rec, new, ["vehicle_id", "t"], 1e-9, 1e-9, 40)
     assert len(diffs) == 1 and "repeat their vehicle_id, t" in str(diffs[0].recorded)
     assert _compare_frames("trajectories", new, new.copy(), ["vehicle_id", "t"], 1e-9, 1e-9, 40) == []
+
+
+@pytest.mark.parametrize("edit, where", [
+    ("movements", "movements.csv"),
+    ("routes", "sumo/routes.rou.xml"),
+])
+def test_an_edited_movement_table_or_route_file_differs(tmp_path, capsys, edit, where):
+    """The recorded movements.csv and the route file SUMO was given are compared too: an edited
+    count, or a vehicle left out of sumo/routes.rou.xml, "differs" (both said "matches")."""
+    import re
+
+    run = tmp_path / "run"
+    shutil.copytree(GOLDEN, run)
+    if edit == "movements":
+        m = pd.read_csv(run / "movements.csv")
+        m.loc[0, "vehicles"] = int(m.loc[0, "vehicles"]) + 90
+        m.to_csv(run / "movements.csv", index=False)
+    else:
+        text = (run / "sumo" / "routes.rou.xml").read_text()
+        first = re.search(r"\s*<vehicle [^>]*?(/>|>.*?</vehicle>)", text, re.S)
+        (run / "sumo" / "routes.rou.xml").write_text(text[:first.start()] + text[first.end():])
+    assert main(["replay", str(run), "--out", str(tmp_path / "again"), "--no-progress"]) == 1
+    assert where in capsys.readouterr().out
