@@ -67,7 +67,7 @@ class Admission:
         lv = self.listed.get(vid)
         human = vid in self.human_ids
         legs = st.itineraries.get(trip, (trip,))
-        lane, mv, on_it = self.lane_movement(vid, legs[0])
+        lane, mv, on_it = lane_movement(st, vid, legs[0])
         if not on_it:  # (inserted on a lane that does not serve its first turn: it changes lanes for it)
             st.sumo.free_lane(vid)
         elif any(len(st.layout.lane_movements[leg]) > 1 for leg in legs):
@@ -95,28 +95,6 @@ class Admission:
             if rec.driver == "human" and st.control:
                 humans.to_stop_line(st, vid)
 
-    def lane_movement(self, vid: str, route: str) -> tuple[str, str, bool]:
-        """``(entry lane, lane-level movement, on it)`` of a vehicle on turning movement ``route``:
-        the one of the lane SUMO has it on; where it is on none of them (it left the junction
-        upstream on a lane that does not serve its next turn, or its road has more edges before
-        the approach), the first, and ``on it`` false: the movement is then chosen where the
-        vehicle enters the control zone (:meth:`choose_lane`)."""
-        lanes = self.st.layout.lane_movements[route]
-        here = self.st.sumo.lane_position(vid)[0]
-        return next(((ln, name, True) for ln, name, _, _ in lanes if ln == here), (*lanes[0][:2], False))
-
-    def choose_lane(self, vid: str, lane: str) -> bool:
-        """A vehicle that SUMO lets change lanes (``lane_kept`` false) is on ``lane`` now: where a
-        movement of its turn starts there, that becomes its movement (True). Lanes are chosen by
-        SUMO's driver (strategic lane changes for its route) upstream of the control zone, and kept
-        inside it: SUMO keeps it on its lane from its zone entry on (:meth:`request`)."""
-        rec = self.st.records[vid]
-        name = self.st.movement_on(vid, lane)
-        if name is None:
-            return False
-        rec.movement, rec.lane = name, lane
-        return True
-
     def next_leg(self, vid: str) -> bool:
         """A vehicle that left a junction's merging zone with a next junction on its trip (a
         corridor): its crossing is kept (``crossings``) and a new record starts for the next one,
@@ -129,7 +107,7 @@ class Admission:
             return False
         st.crossings.append(rec)
         route = rec.legs[rec.leg + 1]
-        lane, mv, on_it = self.lane_movement(vid, route)
+        lane, mv, on_it = lane_movement(st, vid, route)
         if not on_it:  # SUMO's driver changes lanes for its next turn, until its control zone
             st.sumo.free_lane(vid)
         new = st.records[vid] = VehicleRecord(
@@ -169,7 +147,7 @@ class Admission:
             if state == "held":
                 blocked.add(rec.lane)
                 rec.t_held += dt
-        self.account_waiting(life.members(State.HELD) + life.members(State.STARTING), dt)
+        account_waiting(self.st, life.members(State.HELD) + life.members(State.STARTING), dt)
 
     def request(self, vid: str, entry_only: bool = False):
         """What a vehicle whose centre of gravity crossed the control-zone entry asks of the
@@ -186,7 +164,7 @@ class Admission:
             return None
         lane, pos = tab.lane[k], float(tab.lane_pos[k])
         if lane not in mv.lane_offset:
-            if rec.lane_kept or not self.choose_lane(vid, lane):
+            if rec.lane_kept or not choose_lane(st, vid, lane):
                 return None  # (before its approach, or on a lane that does not serve its turn yet)
             mv = st.paths[rec.movement]
         s_cg = mv.s_of(lane, pos) - st.params.cg_to_front
@@ -252,7 +230,7 @@ class Admission:
         for j in st.junctions.values():
             self.close_batch(j, dt, pending.get(j.id, []) if pending is not None else None)
         if st.life.count(State.STARTING):
-            self.account_waiting(st.life.members(State.STARTING), dt)
+            account_waiting(st, st.life.members(State.STARTING), dt)
 
     def pending(self, j) -> list[str]:
         """Junction ``j``'s batch: its vehicles waiting for it to close (held ones too)."""
@@ -273,7 +251,7 @@ class Admission:
             rec = st.records[vid]
             if rec.status == "held":
                 rec.t_held += dt
-        self.account_waiting(pending, dt)
+        account_waiting(st, pending, dt)
         if not pending or (st.t < j.batch_closes - 1e-9 and not self.must_close(pending, waiting)):
             return
         got = {}
@@ -313,19 +291,6 @@ class Admission:
             if st.paths[st.records[vid].movement].s_merge - s <= v * v / (2.0 * brake) + v * BATCH_CLOSE_S:
                 return True
         return False
-
-    def account_waiting(self, vids: list[str], dt: float) -> None:
-        """Energy and fuel of vehicles in the control zone that SUMO still drives (waiting for their
-        batch, or held), from SUMO's speed and acceleration; carried over when they are admitted."""
-        tab = self.st.snap
-        for vid in vids:
-            k = tab.row.get(vid)
-            if k is None:
-                continue
-            v, a = float(tab.speed[k]), float(tab.accel[k])
-            acc = self.st.records[vid].acc
-            acc[kb.ACC_ENERGY] += 0.5 * a * a * dt
-            acc[kb.ACC_FUEL] += fuel_rate(v, a) * dt
 
     def hold(self, vid: str) -> None:
         """No merge time for a vehicle in the control zone now (``held``): SUMO drives it on to a
@@ -492,3 +457,41 @@ class Admission:
                 st.sumo.cancel_stop(vid)
             self.admit(got, Assignment(vid, rec.lane, st.t, prof.t_m, prof, rec.predecessor, rec.relation,
                                        rec.binding, rec.movement))
+
+
+def lane_movement(st, vid: str, route: str) -> tuple[str, str, bool]:
+    """``(entry lane, lane-level movement, on it)`` of a vehicle on turning movement ``route``:
+    the one of the lane SUMO has it on; where it is on none of them (it left the junction
+    upstream on a lane that does not serve its next turn, or its road has more edges before
+    the approach), the first, and ``on it`` false: the movement is then chosen where the
+    vehicle enters the control zone (:func:`choose_lane`)."""
+    lanes = st.layout.lane_movements[route]
+    here = st.sumo.lane_position(vid)[0]
+    return next(((ln, name, True) for ln, name, _, _ in lanes if ln == here), (*lanes[0][:2], False))
+
+
+def choose_lane(st, vid: str, lane: str) -> bool:
+    """A vehicle that SUMO lets change lanes (``lane_kept`` false) is on ``lane`` now: where a
+    movement of its turn starts there, that becomes its movement (True). Lanes are chosen by
+    SUMO's driver (strategic lane changes for its route) upstream of the control zone, and kept
+    inside it: SUMO keeps it on its lane from its zone entry on (:meth:`Admission.request`)."""
+    rec = st.records[vid]
+    name = st.movement_on(vid, lane)
+    if name is None:
+        return False
+    rec.movement, rec.lane = name, lane
+    return True
+
+
+def account_waiting(st, vids: list[str], dt: float) -> None:
+    """Energy and fuel of vehicles in the control zone that SUMO still drives (waiting for their
+    batch, or held), from SUMO's speed and acceleration; carried over when they are admitted."""
+    tab = st.snap
+    for vid in vids:
+        k = tab.row.get(vid)
+        if k is None:
+            continue
+        v, a = float(tab.speed[k]), float(tab.accel[k])
+        acc = st.records[vid].acc
+        acc[kb.ACC_ENERGY] += 0.5 * a * a * dt
+        acc[kb.ACC_FUEL] += fuel_rate(v, a) * dt
