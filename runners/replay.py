@@ -162,7 +162,9 @@ def compare_runs(recorded: Path, replayed: Path, rtol: float = RTOL, atol: float
             diffs += _compare_frames(name, a, b, [k for k in keys if k in a.columns and k in b.columns], rtol, atol,
                                      limit, rounded=True)
     r_rec, r_new = recorded / "sumo" / "routes.rou.xml", replayed / "sumo" / "routes.rou.xml"
-    if r_rec.is_file() and r_new.is_file():  # (the demand SUMO was given: rebuilt from the configuration)
+    if r_rec.is_file() != r_new.is_file():
+        diffs.append(Difference("sumo/routes.rou.xml", "file", r_rec.is_file(), r_new.is_file()))
+    elif r_rec.is_file():  # (the demand SUMO was given: rebuilt from the configuration)
         diffs += _compare_frames("sumo/routes.rou.xml", _departures(r_rec), _departures(r_new), ["id"], rtol, atol,
                                  limit)
     return diffs

@@ -29,7 +29,7 @@ import json
 import math
 import os
 import shutil
-import signal
+import sys
 import threading
 import uuid
 from collections import Counter
@@ -360,19 +360,48 @@ def _duration(s: float) -> str:
     return f"{s // 3600} h {s % 3600 // 60:02d} min"
 
 
+def _connect(client_class, address: str):
+    """A Dask client of the scheduler at ``address``, or TimeoutError after about
+    ``SCHEDULER_TIMEOUT_S``: Dask's own timeout does not bound a server that accepts the connection
+    and never answers, so the connection is made in a thread that is waited for no longer."""
+    got: dict = {}
+
+    def connect():
+        try:
+            got["client"] = client_class(address, timeout=SCHEDULER_TIMEOUT_S)
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller
+            got["error"] = exc
+
+    thread = threading.Thread(target=connect, daemon=True)  # (a daemon: the process never waits for it)
+    thread.start()
+    thread.join(SCHEDULER_TIMEOUT_S + 5.0)
+    if "client" in got:
+        return got["client"]
+    if "error" in got:
+        raise got["error"]
+    raise TimeoutError(f"no answer from {address}")
+
+
 @contextlib.contextmanager
-def _workers_ignore_ctrl_c():
-    """The worker processes started inside ignore SIGINT (the disposition is inherited): a Ctrl-C
-    at the terminal reaches the whole process group, and it is the sweep's to stop them, not each
-    worker's to print its own traceback. Only in the main thread; elsewhere nothing changes."""
-    if threading.current_thread() is not threading.main_thread():
+def _quiet_workers():
+    """The worker processes started inside write nothing to the terminal: their standard error is
+    the null device. A Ctrl-C at the terminal reaches the whole process group; the sweep stops
+    (one line, exit 1) and stops its workers, which would otherwise each print the traceback of
+    their own interrupt. (A failed run is a row of the sweep, with its error, not a message.)"""
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):  # (no standard error to speak of)
         yield
         return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, 2)
+        os.close(null)
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        os.dup2(saved, 2)
+        os.close(saved)
 
 
 def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | None = None,
@@ -398,7 +427,7 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
                               "distributed.scheduler.worker-saturation": 1.0}):
             if scheduler:
                 try:
-                    client, cluster = Client(scheduler, timeout=SCHEDULER_TIMEOUT_S), None
+                    client, cluster = _connect(Client, scheduler), None
                 except (OSError, TimeoutError, ValueError) as exc:
                     raise SweepError(f"--scheduler {scheduler}: cannot reach it within {SCHEDULER_TIMEOUT_S:g} s "
                                      f"({type(exc).__name__}): start it, or check the address") from None
@@ -411,7 +440,7 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
                 cluster = make_cluster(batch, len(todo), out / "jobs")
                 client = Client(cluster)
             else:
-                with _workers_ignore_ctrl_c():
+                with _quiet_workers():
                     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                            dashboard_address=":0", memory_limit=0,
                                            silence_logs=logging.CRITICAL)  # (a failed run is a row, not a traceback)
@@ -1028,7 +1057,7 @@ def _close_clusters() -> None:
 
     try:
         from distributed.deploy.spec import SpecCluster, close_clusters
-    except ImportError:
+    except Exception:  # noqa: BLE001 - not installed, or stopped half-imported: no cluster was made
         return
     for cluster in list(SpecCluster._instances):
         with contextlib.suppress(Exception):

@@ -223,6 +223,16 @@ def _scenario_copy(tmp_path, old=None, new=None, extra=""):
     # SUMO's other long names of an option (it wrote the file; it was refused as unknown)
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--ndump", "n.xml"]', "",
      "--ndump (--netstate-dump) would write files outside the run folder"),
+    # a suffix on SUMO's output names (it wrote outside the run with "_d/../../x"), outputs the run
+    # cannot read, and an option given twice (SUMO refused each once started)
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--output-suffix", "_d/../../x"]', "",
+     "--output-suffix would write files outside the run folder"),
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--output.format", "csv"]', "",
+     "--output.format: the run reads SUMO's outputs as XML"),
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--human-readable-time"]', "",
+     "--human-readable-time: the run reads SUMO's times as seconds"),
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--max-depart-delay", "3", "--max-depart-delay", "2"]',
+     "", "--max-depart-delay is given twice"),
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["-q"]', "", "no option -q"),
     # device and state options that write files of their own into the working folder
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--device.ssm.probability", "1"]', "",

@@ -209,6 +209,8 @@ NOT_FOR_A_RUN = {
     "mesosim": "SUMO's mesoscopic model has no lanes or positions to place a controlled car on",
     "help": "it prints SUMO's help instead of running", "version": "it prints SUMO's version instead of running",
     "print-options": "it prints SUMO's options instead of running",
+    "output.format": "the run reads SUMO's outputs as XML", "human-readable-time": "the run reads SUMO's times "
+    "as seconds",
 }
 
 
@@ -255,7 +257,7 @@ def sumo_writing_options() -> set[str]:
                 _SUMO_WRITING.add(m.group(1))
             elif m and (m.group(1).startswith(("save-state.", "device.ssm.")) or m.group(1).endswith(".file")):
                 _SUMO_WRITING.add(m.group(1))  # (state files; the ssm device writes ssm_<vehicle>.xml unasked)
-        _SUMO_WRITING.update({"output-prefix", "save-configuration", "save-template", "save-schema"})
+        _SUMO_WRITING.update({"output-prefix", "output-suffix", "save-configuration", "save-template", "save-schema"})
     return _SUMO_WRITING
 
 
@@ -341,6 +343,10 @@ def check_sumo_args(args: tuple[str, ...]) -> None:
             problems.append(why)
     if problems:
         raise NetworkError(f"sumo.extra_args: {'; '.join(problems)}")
+    names = [n for _, n in given]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise NetworkError(f"sumo.extra_args: --{twice[0]} is given twice; give it once")
     unfit = [(a, n) for a, n in given if n in NOT_FOR_A_RUN]
     if unfit:
         a, n = unfit[0]
