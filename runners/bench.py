@@ -256,6 +256,7 @@ def scale_figure(rows: list[dict], path: Path) -> None:
 def scale_section(duration_s: float, figure: Path | None, district_hour: bool = True) -> list[str]:
     """The scale benchmark's table (grids of ``SCALE_SIDES``), and its figure at ``figure``; with
     ``district_hour``, the 16-junction grid also for an hour."""
+    bench_scale(2, 120.0)  # (untimed: compiles every kernel once, if need be, into numba's cache)
     rows = [bench_scale(n, duration_s) for n in SCALE_SIDES]
     hour = bench_scale(4, 3600.0) if district_hour else None  # the 16-junction district for an hour
     if figure is not None:
