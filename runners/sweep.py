@@ -112,7 +112,7 @@ def parse_seeds(text: str) -> list[int]:
         if ":" in text:
             a, b = (int(x) for x in text.split(":"))
         else:
-            seeds = [int(x) for x in text.split(",") if x.strip()]
+            seeds = [int(x) for x in text.split(",")]  # (an empty item, as in 1,,2, is not a seed)
     except ValueError:
         raise SweepError(f"--seeds {text!r}: expected A:B or a comma list of integers") from None
     if ":" in text:

@@ -510,6 +510,8 @@ def test_a_sweep_too_large_or_with_an_unreachable_scheduler_is_refused_in_one_li
     # one seed twice would be one run counted as two samples (intervals of "± 0")
     assert main(["sweep", str(CROSS4), "--seeds", "1,2,1", "--out", str(tmp_path / "a"), "--no-progress"]) == 2
     assert "seed 1 is given twice" in capsys.readouterr().err
+    assert main(["sweep", str(CROSS4), "--seeds", "1,,2", "--out", str(tmp_path / "a"), "--no-progress"]) == 2
+    assert "expected A:B or a comma list of integers" in capsys.readouterr().err
     assert main(["sweep", str(CROSS4), "--seeds", "1:2", "--duration", "5", "--set", "outputs.warmup_s=0", "--scheduler", "tcp://127.0.0.1:1",
                  "--out", str(tmp_path / "b"), "--no-progress"]) == 2
     err = capsys.readouterr().err
