@@ -143,7 +143,7 @@ class Demand:
         if d.scale != 1.0:  # SUMO's --scale: each vehicle int(scale) times, and once more with the rest's chance
             whole, rest = divmod(d.scale, 1.0)
             copies = int(whole) + (rng.random(len(read)) < rest)
-            read = [(vid if k == 0 else f"{vid}#{k}", *v[1:]) for (vid, *_), v, n in zip(read, read, copies.tolist())
+            read = [(v[0] if k == 0 else f"{v[0]}#{k}", *v[1:]) for v, n in zip(read, copies.tolist())
                     for k in range(n)]
         offsets = rng.uniform(0.0, d.depart_offset_s, len(read)) if d.depart_offset_s > 0 else np.zeros(len(read))
         for (vid, legs, t, v0, pos, edges, lane, vclass), extra in zip(read, offsets.tolist()):

@@ -41,11 +41,9 @@ def track_sumo_driven(st, dt: float, next_leg) -> list[str]:
         if lane not in mv.lane_offset:
             # (a vehicle SUMO lets change lanes, on another lane of its approach now: the movement
             # of that lane is its own)
-            name = None if rec.lane_kept or not math.isnan(rec.t_exit) else st.movement_on(vid, lane)
-            if name is None:
+            if rec.lane_kept or not math.isnan(rec.t_exit) or not st.choose_lane(vid, lane):
                 continue
-            rec.movement, rec.lane = name, lane
-            mv = st.paths[name]
+            mv = st.paths[rec.movement]
         s_new = mv.s_of(lane, pos) - cg
         v, a = float(tab.speed[k]), float(tab.accel[k])
         s_prev = rec.s_last

@@ -47,14 +47,17 @@ class RunState:
             return None
         return mv.s_of(self.snap.lane[k], float(self.snap.lane_pos[k])) - self.params.cg_to_front
 
-    def movement_on(self, vid: str, lane: str, entry_only: bool = True) -> str | None:
-        """The lane-level movement of vehicle ``vid``'s turning movement (its record's ``route``)
-        that starts on ``lane`` (``entry_only`` false: whose path holds ``lane`` anywhere); None
-        where none does (a lane that does not serve its turn)."""
-        for ln, name, _, _ in self.layout.lane_movements[self.records[vid].route]:
-            if ln == lane or (not entry_only and lane in self.paths[name].lane_offset):
-                return name
-        return None
+    def choose_lane(self, vid: str, lane: str) -> bool:
+        """A vehicle that SUMO lets change lanes (``lane_kept`` false) is on ``lane`` now: where a
+        movement of its turn (its record's ``route``) starts there, that becomes its movement and
+        entry lane (True); False on a lane that does not serve its turn. Lanes are chosen by SUMO's
+        driver upstream of the control zone and kept inside it."""
+        rec = self.records[vid]
+        for ln, name, _, _ in self.layout.lane_movements[rec.route]:
+            if ln == lane:
+                rec.movement, rec.lane = name, lane
+                return True
+        return False
 
     def standing_at_stop(self, vid: str) -> bool:
         """Whether a vehicle stands at the stop :func:`~nrtraffic.junction.build.stop_lines` gives

@@ -255,8 +255,8 @@ def claim_run_dir(out: Path, sc: scenario_mod.Scenario, seed: int | None, durati
                          "recorded its files there (--force removes those alone); choose another folder, or empty "
                          "this one yourself")
     # what the new run writes must not meet a file that no earlier run there created (the user's)
-    clash = sorted(n for n in run_file_names(sc) if n != "sumo" and (out / n).exists()
-                   and n not in set(m["created"]))
+    ours = set(m["created"])
+    clash = sorted(n for n in run_file_names(sc) if n != "sumo" and (out / n).exists() and n not in ours)
     if clash:
         raise ValueError(f"--out {out} holds {', '.join(clash)}, which no earlier run there created (files of your "
                          "own?): a run would write over them; choose another folder")

@@ -164,7 +164,7 @@ class Admission:
             return None
         lane, pos = tab.lane[k], float(tab.lane_pos[k])
         if lane not in mv.lane_offset:
-            if rec.lane_kept or not choose_lane(st, vid, lane):
+            if rec.lane_kept or not st.choose_lane(vid, lane):
                 return None  # (before its approach, or on a lane that does not serve its turn yet)
             mv = st.paths[rec.movement]
         s_cg = mv.s_of(lane, pos) - st.params.cg_to_front
@@ -464,23 +464,11 @@ def lane_movement(st, vid: str, route: str) -> tuple[str, str, bool]:
     the one of the lane SUMO has it on; where it is on none of them (it left the junction
     upstream on a lane that does not serve its next turn, or its road has more edges before
     the approach), the first, and ``on it`` false: the movement is then chosen where the
-    vehicle enters the control zone (:func:`choose_lane`)."""
+    vehicle enters the control zone (:meth:`~nrtraffic.state.RunState.choose_lane`)."""
     lanes = st.layout.lane_movements[route]
     here = st.sumo.lane_position(vid)[0]
     return next(((ln, name, True) for ln, name, _, _ in lanes if ln == here), (*lanes[0][:2], False))
 
-
-def choose_lane(st, vid: str, lane: str) -> bool:
-    """A vehicle that SUMO lets change lanes (``lane_kept`` false) is on ``lane`` now: where a
-    movement of its turn starts there, that becomes its movement (True). Lanes are chosen by
-    SUMO's driver (strategic lane changes for its route) upstream of the control zone, and kept
-    inside it: SUMO keeps it on its lane from its zone entry on (:meth:`Admission.request`)."""
-    rec = st.records[vid]
-    name = st.movement_on(vid, lane)
-    if name is None:
-        return False
-    rec.movement, rec.lane = name, lane
-    return True
 
 
 def account_waiting(st, vids: list[str], dt: float) -> None:

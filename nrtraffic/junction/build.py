@@ -74,6 +74,10 @@ def build_paths(sc, layout: Layout, sumo, params, control: bool) -> tuple[dict[s
         starts = [path.project(shape[0])[0] for _, shape, _ in lanes] + [path.length]
         offsets = {lane: (starts[k], (starts[k + 1] - starts[k]) / length if length > 0 else 1.0)
                    for k, (lane, _, length) in enumerate(lanes)}
+        # how far the junction's internal lanes (where the paths cross and turn) reach from its centre [m]
+        internal = [shape for ln, shape, _ in lanes if ln.startswith(":")]
+        reach = (max(float(np.hypot(*(np.asarray(sh) - j.xy).T).max()) for sh in internal)
+                 if j.xy is not None and internal else None)
         if j.xy is not None:
             # merging zone: the disc of diameter merging_zone_m around the junction centre
             inside = np.flatnonzero(j.in_merging_zone(path.xy))
@@ -82,9 +86,7 @@ def build_paths(sc, layout: Layout, sumo, params, control: bool) -> tuple[dict[s
                                  f"= {j.merging_zone_m:g} m around its centre)")
             if inside[0] == 0:  # (its approach starts inside the zone: a short link from the node before it)
                 r0 = float(np.hypot(*(path.xy[0] - np.asarray(j.xy))))
-                internal = [shape for ln, shape, _ in lanes if ln.startswith(":")]
-                reach = max((float(np.hypot(*(np.asarray(sh) - j.xy).T).max()) for sh in internal), default=0.0)
-                fix = (f"set {key} to at most {2.0 * math.floor(r0 - 1.0):g} m" if reach + 1.0 < r0 - 1.0 else
+                fix = (f"set {key} to at most {2.0 * math.floor(r0 - 1.0):g} m" if (reach or 0.0) + 1.0 < r0 - 1.0 else
                        f"the junction's own lanes reach {reach:.1f} m from its centre, so no merging zone fits both: "
                        f"join it with the node before it into one junction (netconvert --junctions.join, or a "
                        f"<join nodes=...> in a node file) and control that one")
@@ -118,15 +120,12 @@ def build_paths(sc, layout: Layout, sumo, params, control: bool) -> tuple[dict[s
             zone_cuts[name] = s_m - s_c
         if s_x > path.length:
             raise ValueError(f"movement {name}: the merging zone runs past the end of the route")
-        internal = [k for k, (ln, _, _) in enumerate(lanes) if ln.startswith(":")]
-        if j.xy is not None and internal:
-            # the junction (its internal lanes, where the paths cross and turn) lies inside the
-            # merging zone: the coordinator plans the crossings there, the stop lines lie before it
-            r = max(float(np.hypot(*(np.asarray(lanes[k][1]) - j.xy).T).max()) for k in internal)
-            if r > j.merging_zone_m / 2.0 + 0.5:
-                raise ValueError(f"movement {name}: junction {j.id}'s internal lanes reach "
-                                 f"{r:.1f} m from its centre, beyond the merging zone ({key} = "
-                                 f"{j.merging_zone_m:g} m); set it to at least {2.0 * math.ceil(r + 1.0):g} m")
+        if reach is not None and reach > j.merging_zone_m / 2.0 + 0.5:
+            # the junction lies inside the merging zone: the coordinator plans the crossings there,
+            # the stop lines lie before it
+            raise ValueError(f"movement {name}: junction {j.id}'s internal lanes reach "
+                             f"{reach:.1f} m from its centre, beyond the merging zone ({key} = "
+                             f"{j.merging_zone_m:g} m); set it to at least {2.0 * math.ceil(reach + 1.0):g} m")
         if control:  # (SUMO drives a baseline's vehicles: the path only measures them)
             check_turn_radius(name, path, s_c, s_x, params, sc.controller.steer_max_rad)
         v_lim = min(sumo.lane_speed(ln) for ln, _, _ in lanes) if j.xy is not None else math.inf

@@ -193,7 +193,6 @@ def actuated(net: Path, junction_ids, output: Path) -> Path:
     return output
 
 
-
 def grid_network(n: int, output: Path, block_m: float = 250.0, lanes: int = 2, speed_mps: float = 13.89,
                  seed: int = 42) -> Path:
     """SUMO's ``netgenerate`` grid of ``n`` x ``n`` junctions (ids ``A0`` ... like netgenerate's),
@@ -202,8 +201,6 @@ def grid_network(n: int, output: Path, block_m: float = 250.0, lanes: int = 2, s
     args = [sumo_binary("netgenerate"), "--grid", "--grid.number", str(n), "--grid.length", f"{block_m:g}",
             "--grid.attach-length", f"{block_m:g}", "--default.lanenumber", str(lanes), "--default.speed",
             f"{speed_mps:g}", "--no-turnarounds", "true", "--seed", str(seed), "-o", str(output)]
-    if n == 1:  # (a single junction: netgenerate needs two nodes a side; the grid is then four arms)
-        args[args.index("--grid.number") + 1] = "1"
     out = subprocess.run(args, capture_output=True, text=True)
     if out.returncode != 0:
         raise SumoToolError(f"netgenerate failed: {out.stderr.strip()[-500:]}")

@@ -214,11 +214,13 @@ NOT_FOR_A_RUN = {
 }
 
 
+SUMO_BOOLS = ("true", "false", "on", "off", "yes", "no", "1", "0")  # the values SUMO reads as a BOOL option's
+
+
 def _value_error(name: str, kind: str, value: str | None) -> str | None:
     """Why ``value`` does not suit option ``name`` of SUMO type ``kind`` (None: it does)."""
     if kind == "BOOL":
-        return None if value is None or value.lower() in ("true", "false", "on", "off", "yes", "no", "1", "0") \
-            else f"--{name} takes true or false, not {value!r}"
+        return None if value is None or value.lower() in SUMO_BOOLS else f"--{name} takes true or false, not {value!r}"
     if value is None:
         return f"--{name} needs a value ({kind.lower()})"
     if kind in ("INT", "FLOAT", "TIME"):
@@ -304,6 +306,7 @@ def check_sumo_args(args: tuple[str, ...]) -> None:
     run writes SUMO's outputs it uses itself (``outputs.sumo_fcd`` for fcd.xml). A value such as
     ``-5`` is not an option."""
     import re
+    from collections import Counter
 
     if not args:
         return
@@ -332,7 +335,7 @@ def check_sumo_args(args: tuple[str, ...]) -> None:
             value = a.split("=", 1)[1] if "=" in a else a[2:]
             k += 1
         elif k + 1 < len(args) and not (args[k + 1].startswith("--") or re.match(r"-[A-Za-z]", args[k + 1])) \
-                and (kind != "BOOL" or args[k + 1].lower() in ("true", "false", "on", "off", "yes", "no", "1", "0")):
+                and (kind != "BOOL" or args[k + 1].lower() in SUMO_BOOLS):
             value = args[k + 1]
             k += 2
         else:
@@ -343,8 +346,7 @@ def check_sumo_args(args: tuple[str, ...]) -> None:
             problems.append(why)
     if problems:
         raise NetworkError(f"sumo.extra_args: {'; '.join(problems)}")
-    names = [n for _, n in given]
-    twice = sorted({n for n in names if names.count(n) > 1})
+    twice = sorted(n for n, c in Counter(n for _, n in given).items() if c > 1)
     if twice:
         raise NetworkError(f"sumo.extra_args: --{twice[0]} is given twice; give it once")
     unfit = [(a, n) for a, n in given if n in NOT_FOR_A_RUN]
