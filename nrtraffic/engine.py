@@ -322,7 +322,7 @@ class Engine:
         st.snap = sumo.snapshot()
         driven = measure.track_sumo_driven(st, dt, adm.next_leg)
         if adm.human_ids:
-            humans.step(st)
+            humans.step(st, adm.blocked_ahead)
         lap("sumo_io")
         # 2. each junction decides
         adm.step(dt)

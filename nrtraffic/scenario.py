@@ -287,6 +287,8 @@ class HumanDriver:
     tau_s: float = 1.0  # desired time headway [s]
     min_gap_m: float = 2.5  # bumper to bumper at a standstill [m]
     speed_dev: float = 0.0  # spread of the desired speed around the speed limit (SUMO's speedDev)
+    conflict_margin_s: float = 0.2  # between two human drivers' occupancies of a conflict area [s]
+    queue_reach_m: float = 17.0  # a standing driver this far short of its stop is reserved in the queue [m]
 
     CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"car_follow_model": ("Krauss",)}
 
@@ -620,7 +622,8 @@ RANGES: dict[str, dict[str, tuple[float, float]]] = {
     "demand.flows": {k: (0.0, 20000.0) for k in ("left", "straight", "right", "u_turn")},
     "demand.intervals": {"begin_s": (0.0, 366 * _DAY_S), "end_s": (0.0, 366 * _DAY_S), "scale": (0.0, 100.0)},
     "human": {"accel_mps2": (0.1, 10.0), "decel_mps2": (0.1, 15.0), "sigma": (0.0, 1.0), "tau_s": (0.01, 10.0),
-              "min_gap_m": (0.0, 20.0), "speed_dev": (0.0, 1.0)},
+              "min_gap_m": (0.0, 20.0), "speed_dev": (0.0, 1.0), "conflict_margin_s": (0.0, 60.0),
+              "queue_reach_m": (0.0, 1000.0)},
     "junction": {"lateral_clearance_m": (0.0, 5.0)},
     "junctions": {"control_zone_m": (0.0, 5000.0), "merging_zone_m": (0.0, 500.0)},
     "barriers": {"min_gap_m": (0.0, 50.0), "max_braking_mps2": (0.1, 15.0), "longitudinal_gain": (1e-3, 1e3),

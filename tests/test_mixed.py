@@ -13,7 +13,7 @@ from nrtraffic import scenario
 from nrtraffic.demand import Demand
 from nrtraffic.engine import Engine
 from nrtraffic.planning.coordinator import Coordinator, CoordinatorSettings
-from nrtraffic.planning.crossing import CrossingBounds, human_crossing, speed_from_rest, travel_time
+from nrtraffic.planning.crossing import CrossingBounds, KraussBounds, human_crossing, speed_from_rest, travel_time
 from nrtraffic.planning.profiles import PlanBounds, from_rest
 from nrtraffic.scenario import ScenarioError
 from nrtraffic.sumo.adapter import SumoSession, VehicleType, write_routes
@@ -62,42 +62,105 @@ def test_travel_time_closed_form_and_derivative():
     assert prof.t_m == pytest.approx(2.0 + travel_time(30.0, a, v_cap))
 
 
+def _released_from_the_stop(tmp_path, seed, sigma, followers=(), headway_s=1.0, lead_route="ws"):
+    """Humans of the given sigma queued on cross4's west approach, the first standing at a stop
+    on W_in, the others (routes ``followers``) behind it, held; the first is released, each
+    follower ``headway_s`` after the one ahead (its stop dropped). Returns, per vehicle, its
+    route, speed factor and (time since its release [s], distance covered [m]) at each step."""
+    net = CROSS4 / "net.net.xml"
+    routes = tmp_path / "r.rou.xml"
+    human = VehicleType("human", 4.8, 1.9, 2.5, 2.6, 4.5, 13.89, sigma=sigma, tau_s=1.0)
+    names = [lead_route, *followers]
+    vehicles = [(f"h{i}", r, 2.0 * i, 13.89, -1.0, "human") for i, r in enumerate(names)]
+    write_routes(routes, [VehicleType(), human], {"ws": ("W_in", "E_out"), "wr": ("W_in", "S_out")}, vehicles)
+    h = 0.1
+    with SumoSession(net, routes, h, seed) as sumo:
+        v = sumo.traci.vehicle
+        for _ in range(1200):
+            sumo.step()
+            for vid in sumo.departed():
+                sumo.stop_at(vid, "W_in_0", 480.0)
+            ids = v.getIDList()
+            if len(ids) == len(names) and sumo.is_stopped("h0") and all(v.getSpeed(x) < 0.01 for x in ids):
+                break
+        assert sumo.is_stopped("h0") and len(v.getIDList()) == len(names)
+        for _ in range(20):  # stands a while
+            sumo.step()
+        start = {x: v.getDistance(x) for x in v.getIDList()}
+        factor = {x: sumo.speed_factor(x) for x in start}
+        for x in start:
+            if x != "h0":
+                v.setSpeed(x, 0.0)
+        t_rel = {"h0": sumo.time}
+        sumo.resume("h0")
+        track = {x: [] for x in start}
+        for _ in range(300):
+            for i in range(1, len(names)):
+                x = f"h{i}"
+                ahead = t_rel.get(f"h{i - 1}")
+                if x not in t_rel and ahead is not None and sumo.time >= ahead + headway_s - 1e-9:
+                    t_rel[x] = sumo.time
+                    sumo.cancel_stop(x)
+                    v.setSpeed(x, -1)
+            sumo.step()
+            here = set(v.getIDList())
+            for x in start:
+                if x in here and x in t_rel:
+                    track[x].append((sumo.time - t_rel[x], v.getDistance(x) - start[x]))
+    return {f"h{i}": (r, factor[f"h{i}"], np.array(track[f"h{i}"]).T) for i, r in enumerate(names)}
+
+
+def _within(bounds, t, d, up_to_m, slack_s=0.0):
+    """Each whole metre up to ``up_to_m`` covered no earlier than the bounds' earliest and no later
+    than their latest (+ ``slack_s``); returns the largest (reached - latest) [s]."""
+    worst = -np.inf
+    assert d[-1] > up_to_m
+    for dist in np.arange(1.0, up_to_m, 1.0):
+        reached = t[np.argmax(d >= dist)]  # the step at the end of which it has covered dist
+        t_in, t_out = bounds.window(dist, dist)
+        assert t_in - 1e-9 <= reached <= t_out + slack_s + 1e-9, (dist, reached, t_in, t_out)
+        worst = max(worst, reached - t_out)
+    return worst
+
+
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_sumo_human_start_from_rest_lies_within_the_bounds(tmp_path, seed):
     """SUMO's Krauss driver (sigma 0.5) stops on cross4's west approach, is released, and goes
-    straight across: the time it takes to cover every distance lies between the bounds the
+    straight across: the time it takes to cover every distance lies between the constant-
+    acceleration bounds, and between the tighter bounds of Krauss's own speed update that the
     reservation uses."""
-    net = CROSS4 / "net.net.xml"
-    routes = tmp_path / "r.rou.xml"
-    human = VehicleType("human", 4.8, 1.9, 2.5, 2.6, 4.5, 13.89, sigma=0.5, tau_s=1.0)
-    write_routes(routes, [VehicleType(), human], {"ws": ("W_in", "E_out")}, [("h", "ws", 0.0, 13.89, -1.0, "human")])
+    (_, factor, (t, d)), = _released_from_the_stop(tmp_path, seed, 0.5).values()
     h = 0.1
-    with SumoSession(net, routes, h, seed) as sumo:
-        sumo.step()
-        assert list(sumo.departed()) == ["h"]  # (subscribes it for the snapshots)
-        sumo.stop_at("h", "W_in_0", 480.0)
-        for _ in range(600):
-            sumo.step()
-            if sumo.is_stopped("h"):
-                break
-        assert sumo.is_stopped("h")
-        for _ in range(20):  # stands a while
-            sumo.step()
-        x0 = sumo.snapshot().x[0]
-        factor = sumo.speed_factor("h")
-        sumo.resume("h")
-        t_rel, xs = sumo.time, []
-        for _ in range(200):
-            sumo.step()
-            tab = sumo.snapshot()
-            xs.append((sumo.time - t_rel, float(tab.x[0]) - x0))
-    b = CrossingBounds(0.5 * 2.6, 2.6, 13.89 * min(1.0, factor), 13.89, h)
-    t, d = np.array(xs).T
-    assert d[-1] > 60.0
-    for dist in np.arange(1.0, 60.0, 1.0):
-        reached = t[np.argmax(d >= dist)]  # the step at the end of which it has covered dist
+    _within(CrossingBounds(0.5 * 2.6, 2.6, 13.89 * min(1.0, factor), 13.89, h), t, d, 60.0, slack_s=h)
+    _within(KraussBounds(2.6, 0.5, 13.89 * min(1.0, factor), 13.89, h), t, d, 60.0)
+    # the Krauss bounds are the tighter: half a second less at 15 m, as SUMO dawdles little below
+    # 2.6 m/s
+    k, c = KraussBounds(2.6, 0.5, 13.89, 13.89, h).window(15.0, 15.0), CrossingBounds(1.3, 2.6, 13.89, 13.89, h).window(15.0, 15.0)
+    assert k[1] < c[1] - 0.4
+
+
+def test_sumo_driver_without_dawdling_follows_the_krauss_update_to_the_step(tmp_path):
+    """sigma 0: SUMO's driver is deterministic, and covers every distance within the step that
+    the Krauss update (the earliest bound's motion) says, released one step late at the most."""
+    (_, _, (t, d)), = _released_from_the_stop(tmp_path, 1, 0.0).values()
+    b = KraussBounds(2.6, 0.0, 13.89, 13.89, 0.1)
+    _within(b, t, d, 80.0)
+    for dist in np.arange(1.0, 80.0, 1.0):
         t_in, t_out = b.window(dist, dist)
-        assert t_in - 1e-9 <= reached <= t_out + h + 1e-9, (dist, reached, t_in, t_out)
+        assert t_out - t_in <= 2 * 0.1 + 1e-9  # (the step early and the step late, and nothing else)
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_a_queue_released_as_a_platoon_keeps_each_drivers_bounds(tmp_path, seed):
+    """Three human drivers queued at the stop: the first turns right (slow), the two behind go
+    straight, each released a second after the one ahead. Each covers every distance within its
+    Krauss bounds, a follower's latest capped by its leader's speed limit (the rule of
+    ``humans.human_bounds``): the car ahead does not hold it back beyond them."""
+    runs = _released_from_the_stop(tmp_path, seed, 0.5, followers=("ws", "ws"), lead_route="wr")
+    v_turn = 6.5075  # the speed limit of cross4's right turn (its internal lane :C_9_0)
+    for i, (name, (route, factor, (t, d))) in enumerate(runs.items()):
+        v_lo = v_turn * min(1.0, factor)  # the leader's cap (its own, or inherited)
+        _within(KraussBounds(2.6, 0.5, v_lo, 13.89, 0.1), t, d, 35.0)
 
 
 def _coordinator():
@@ -151,8 +214,10 @@ def mixed_run(tmp_path_factory):
     original = Coordinator.reserve_crossing
 
     def record(self, vehicle_id, *args, **kwargs):
-        reserved[vehicle_id] = original(self, vehicle_id, *args, **kwargs)
-        return reserved[vehicle_id]
+        asg = original(self, vehicle_id, *args, **kwargs)
+        if asg is not None:  # (None: a driver that could not go on without stopping, not reserved)
+            reserved[vehicle_id] = asg
+        return asg
 
     Coordinator.reserve_crossing = record
     try:

@@ -167,6 +167,7 @@ class Assignment:
     t_release: float = float("nan")  # a reserved crossing (:meth:`Coordinator.reserve_crossing`): its start [s]
     occupancy: dict | None = None  # ... and its occupancy of each conflict area: other movement -> (in, out) [s]
     motion: Profile | None = None  # ... and its slowest start (standing_start), that a follower keeps behind
+    driven_by_sumo: bool = False  # ... and SUMO's driver makes it (a human driver)
 
 
 @dataclass(frozen=True)
@@ -375,18 +376,22 @@ class Coordinator:
         return cost
 
     def _first_free(self, t_m: float, movement: str, v: float, extra: tuple = (),
-                    offsets: dict | None = None) -> tuple[float, str | None]:
+                    offsets: dict | None = None, sumo_margin_s: float | None = None) -> tuple[float, str | None]:
         """Earliest merge time from ``t_m`` at which this movement's occupancy of every conflict
         area on its path (entered at ``t + from / v``, left at ``t + to / v``, crossing at ``v``),
         widened by the margin, overlaps no reservation's occupancy of the same area; and the
         vehicle whose reservation pushed it last (None when ``t_m`` was free). ``extra``: tentative
         reservations ``(vehicle_id, movement, t_merge, v_m)``. ``offsets`` replaces the constant
         crossing speed: other movement -> (entry, exit) of the shared area [s after ``t``] (a
-        crossing the coordinator does not steer, :meth:`reserve_crossing`)."""
+        crossing the coordinator does not steer, :meth:`reserve_crossing`). ``sumo_margin_s``: the
+        margin to a reservation of SUMO's driver where this one is SUMO's driver too (both bounded
+        by the driver's own speed update; default the margin)."""
         margin = self.settings.conflict_margin_s
         blocker = None
-        reserved = [(r.vehicle_id, r.movement, r.t_merge, r.profile.v_m, r.occupancy) for r in self._reserved]
-        reserved += [(*x, None) for x in extra]
+        reserved = [(r.vehicle_id, r.movement, r.t_merge, r.profile.v_m, r.occupancy,
+                     margin if sumo_margin_s is None or not r.driven_by_sumo else sumo_margin_s)
+                    for r in self._reserved]
+        reserved += [(*x, None, margin) for x in extra]
         if offsets is None:
             def mine_of(other):
                 a = self.areas.get((movement, other))
@@ -396,7 +401,7 @@ class Coordinator:
         moved = True
         while moved:
             moved = False
-            for r_id, r_mv, r_tm, v_r, occ in reserved:
+            for r_id, r_mv, r_tm, v_r, occ, gap in reserved:
                 mine = mine_of(r_mv)
                 if mine is None:
                     continue
@@ -411,13 +416,17 @@ class Coordinator:
                         continue
                     r_in, r_out = w
                 m_in, m_out = t_m + mine[0], t_m + mine[1]
-                if m_in < r_out + margin - _EPS_S and r_in < m_out + margin - _EPS_S:  # overlap
-                    later = r_out + margin - mine[0]  # wait until it has left
+                if m_in < r_out + gap - _EPS_S and r_in < m_out + gap - _EPS_S:  # overlap
+                    later = r_out + gap - mine[0]  # wait until it has left
                     if later > t_m:  # (rounding must not stall the search)
                         t_m = later
                         blocker = r_id
                         moved = True
         return t_m, blocker
+
+    def last_on_lane(self, lane: str) -> Assignment | None:
+        """The last assignment on entry lane ``lane`` (the one a new request there follows)."""
+        return self._last_on_lane.get(lane)
 
     def reserved_after(self, t: float) -> bool:
         """Whether a reservation of a conflict area (a plan or a reserved crossing) ends after
@@ -426,7 +435,9 @@ class Coordinator:
 
     def reserve_crossing(self, vehicle_id: str, lane: str, movement: str, t0: float, offsets: dict,
                          merge_window: tuple[float, float], exit_window: tuple[float, float],
-                         v_exit_min: float, start: tuple[float, float, float] | None = None) -> Assignment:
+                         v_exit_min: float, start: tuple[float, float, float] | None = None,
+                         driven_by_sumo: bool = False, platoon_headway_s: float = 1.0,
+                         sumo_margin_s: float | None = None, now_only: bool = False) -> Assignment | None:
         """Reserve the crossing of a vehicle that starts from rest (a human driver standing at the
         stop line, ``demand.controlled_share``, or a controlled car queued behind one), first come
         first served: the
@@ -446,10 +457,23 @@ class Coordinator:
         than ``delta / max(v_exit_min, v_min)`` after j's (latest) exit, so that it does not start
         before the vehicle ahead of it and the vehicle ahead does not hold it back; when j starts
         from rest too (a standing queue), no sooner than ``h_min`` after j's start (a car far back
-        in the queue would otherwise set off before the one ahead of it and run into it)."""
+        in the queue would otherwise set off before the one ahead of it and run into it).
+
+        ``driven_by_sumo`` (a human driver) behind another reservation ``driven_by_sumo``: both
+        start from rest under SUMO's car-following model, which keeps the gap between them; it may
+        start ``platoon_headway_s`` after the one ahead, whose start then holds it back no more
+        than its own bounds say (checked against SUMO's driver in tests/test_mixed.py); and
+        ``sumo_margin_s`` replaces the margin between the two occupancies of a conflict area.
+
+        ``now_only``: a crossing that starts at ``t0`` or not at all (a driver on the move that goes
+        on without stopping): None, and nothing reserved, where it would have to start later."""
         t_start, binding, pred, relation = t0, "earliest", None, "none"
         prev = self._last_on_lane.get(lane)
-        if prev is not None:
+        if prev is not None and driven_by_sumo and prev.driven_by_sumo:  # a platoon of SUMO's drivers
+            pred, relation = prev.vehicle_id, "same_lane"
+            if prev.t_release + platoon_headway_s > t_start:
+                t_start, binding = prev.t_release + platoon_headway_s, "rear_end"
+        elif prev is not None:
             spacing_t = self.settings.rear_end_spacing_m / max(v_exit_min, self.bounds.v_min_mps)
             t_same = max(prev.t_merge + self.settings.min_merge_headway_s - merge_window[0],
                          prev.t_exit + spacing_t - exit_window[0])
@@ -460,13 +484,17 @@ class Coordinator:
             pred, relation = prev.vehicle_id, "same_lane"
             if t_same > t_start:
                 t_start, binding = t_same, "rear_end"
-        t, blocker = self._first_free(t_start, movement, 0.0, offsets=offsets)
+        t, blocker = self._first_free(t_start, movement, 0.0, offsets=offsets,
+                                      sumo_margin_s=sumo_margin_s if driven_by_sumo else None)
+        if now_only and t > t0 + _EPS_S:
+            return None
         if blocker is not None:
             pred, relation, binding = blocker, "conflict", "conflict"
         occ = {o: (t + a, t + b) for o, (a, b) in offsets.items()}
         motion = None if start is None else standing_start(t0, t, *start)
         a = Assignment(vehicle_id, lane, t0, t + merge_window[1], Crossing(max(v_exit_min, 1e-3)), pred, relation,
-                       binding, movement, t + exit_window[1], t_release=t, occupancy=occ, motion=motion)
+                       binding, movement, t + exit_window[1], t_release=t, occupancy=occ, motion=motion,
+                       driven_by_sumo=driven_by_sumo)
         self._last_on_lane[lane] = a
         self._reserved = [x for x in self._reserved if x.t_exit + self.settings.conflict_margin_s > t0] + [a]
         return a

@@ -23,6 +23,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 
 def travel_time(d: float, a: float, v_cap: float, v0: float = 0.0) -> float:
     """Time [s] to cover ``d`` [m] from speed ``v0`` (default rest) at acceleration ``a`` [m/s^2]
@@ -64,14 +66,99 @@ class CrossingBounds:
         t_in = max(travel_time(d_in, self.a_hi, self.v_hi, v0) - self.step_s, 0.0)
         return t_in, travel_time(d_out, self.a_lo, self.v_lo, v0) + self.step_s
 
+    def speed_at(self, d: float, v0: float = 0.0) -> float:
+        """Its lowest speed [m/s] ``d`` [m] on from speed ``v0`` [m/s]."""
+        if v0 >= self.v_lo:
+            return self.v_lo
+        return min(self.v_lo, math.sqrt(v0 * v0 + 2.0 * self.a_lo * max(d, 0.0)))
 
-def human_crossing(bounds: CrossingBounds, areas: dict, d_merge: float, d_exit: float):
-    """Occupancy offsets of a crossing from rest: ``areas`` maps each other movement to the stretch
-    ``(d_in, d_out)`` [m ahead of the standing centre of gravity] where the bodies can touch;
+
+def human_crossing(bounds, areas: dict, d_merge: float, d_exit: float, v0: float = 0.0):
+    """Occupancy offsets of a crossing from rest, or from speed ``v0`` [m/s] on the move (bounds
+    :class:`CrossingBounds` or :class:`KraussBounds`): ``areas`` maps each other movement to the
+    stretch ``(d_in, d_out)`` [m ahead of the centre of gravity] where the bodies can touch;
     ``d_merge``, ``d_exit`` the distances to the merging-zone entry and exit [m]. Returns
     ``(offsets, merge_window, exit_window, v_exit_min)`` as
     :meth:`~nrtraffic.planning.coordinator.Coordinator.reserve_crossing` takes them."""
-    offsets = {o: bounds.window(max(a, 0.0), max(b, 0.0)) for o, (a, b) in areas.items()}
-    v_exit = speed_from_rest(d_exit, bounds.a_lo, bounds.v_lo)
+    offsets = {o: bounds.window(max(a, 0.0), max(b, 0.0), v0) for o, (a, b) in areas.items()}
     # (a vehicle standing in the merging zone has passed its entry: d_merge < 0, entered now)
-    return offsets, bounds.window(d_merge, d_merge), bounds.window(d_exit, d_exit), v_exit
+    return (offsets, bounds.window(d_merge, d_merge, v0), bounds.window(d_exit, d_exit, v0),
+            bounds.speed_at(d_exit, v0))
+
+
+class KraussBounds:
+    """The earliest and latest times [s] in which SUMO's Krauss driver covers a distance, computed
+    by stepping its own speed update rather than bounding it by constant accelerations.
+
+    Each step of ``step_s`` [s], Krauss's next speed is ``u = min(v + accel step, v_cap)`` less its
+    dawdling, ``sigma u step r`` while ``u < accel`` (numerically: SUMO compares the speed with the
+    acceleration) and ``sigma accel step r`` above, ``r`` uniform in [0, 1)
+    (``MSCFModel_Krauss::dawdle2``); the position moves on by ``u step`` (semi-implicit Euler).
+    ``r = 0`` at ``v_hi`` gives the earliest motion, ``r -> 1`` at ``v_lo`` the latest, which also
+    sets off one step late. A start from rest therefore picks up speed at almost ``accel`` until
+    it reaches ``accel`` [m/s] numerically, and at ``(1 - sigma) accel`` only above it, where
+    :class:`CrossingBounds` assumes ``(1 - sigma) accel`` throughout: about half a second less per
+    conflict area at SUMO's defaults. On the move, from speed ``v0``, the bounds continue the
+    motion from rest from its last step no faster (latest) or first step no slower (earliest) than
+    ``v0``: the speed update is monotone in the speed, so either is on the safe side.
+
+    ``a_lo``, ``v_lo``: a constant-acceleration motion no faster than the latest one (a follower
+    planned behind this start keeps behind it, :meth:`~nrtraffic.planning.coordinator.Coordinator.
+    reserve_crossing`)."""
+
+    def __init__(self, accel: float, sigma: float, v_lo: float, v_hi: float, step_s: float):
+        if not (accel > 0 and 0 <= sigma < 1 and 0 < v_lo <= v_hi and step_s > 0):
+            raise ValueError(f"Krauss bounds need accel > 0, 0 <= sigma < 1, 0 < v_lo <= v_hi, step > 0: "
+                             f"{accel}, {sigma}, {v_lo}, {v_hi}, {step_s}")
+        self.accel, self.sigma, self.step_s = accel, sigma, step_s
+        self._lo = self._motion(sigma, v_lo)
+        self._hi = self._motion(0.0, v_hi)
+        self.a_lo, self.a_hi = (1.0 - sigma) * accel, accel
+        self.v_lo, self.v_hi = self._lo[2], v_hi  # (the latest cruises a dawdle below its cap)
+
+    def _motion(self, sigma: float, v_cap: float) -> tuple:
+        """Speeds [m/s] and positions [m] at the end of each step from rest, while it picks up
+        speed; then its cruising speed."""
+        a, h = self.accel, self.step_s
+        v = x = 0.0
+        vs, xs = [0.0], [0.0]
+        while True:
+            u = min(v + a * h, v_cap)
+            u = max(u - sigma * h * (u if u < a else a), 0.0)
+            if u <= v + 1e-12:  # cruising: it gains nothing more
+                return np.array(vs), np.array(xs), max(v, 1e-9)
+            v, x = u, x + u * h
+            vs.append(v)
+            xs.append(x)
+
+    def _time(self, motion: tuple, d: float, v0: float, slowest: bool) -> float:
+        """Steps [s] from a state of speed ``v0`` to cover ``d`` [m] on ``motion``."""
+        vs, xs, v_cruise = motion
+        h = self.step_s
+        if slowest:  # the last step no faster than v0
+            j = int(np.searchsorted(vs, v0 + 1e-9, side="right")) - 1
+        else:  # the first step no slower than v0
+            j = int(np.searchsorted(vs, v0 - 1e-9, side="left"))
+        if j >= len(vs):  # faster than the motion ever gets: (earliest) at its own speed
+            return d / max(v0, v_cruise)
+        target = xs[j] + d
+        k = int(np.searchsorted(xs, target - 1e-9, side="left"))
+        if k < len(xs):
+            return (k - j) * h
+        return (len(xs) - 1 - j + math.ceil((target - xs[-1]) / (v_cruise * h) - 1e-9)) * h
+
+    def speed_at(self, d: float, v0: float = 0.0) -> float:
+        """Its lowest speed [m/s] ``d`` [m] on from speed ``v0`` [m/s]."""
+        vs, xs, v_cruise = self._lo
+        j = int(np.searchsorted(vs, v0 + 1e-9, side="right")) - 1
+        k = int(np.searchsorted(xs, xs[j] + d - 1e-9, side="left"))
+        return float(vs[k]) if k < len(vs) else v_cruise
+
+    def window(self, d_in: float, d_out: float, v0: float = 0.0) -> tuple[float, float]:
+        """Earliest entry and latest exit [s from now] of the stretch ``[d_in, d_out]`` [m ahead
+        of the centre of gravity], for a driver at speed ``v0`` [m/s] (default: at rest, about to
+        be released); the latest sets off one step late (SUMO acts on a release, or a dropped stop,
+        in its next step); never before now."""
+        t_in = self._time(self._hi, d_in, v0, False) if d_in > 0 else 0.0
+        t_out = self._time(self._lo, d_out, v0, True) if d_out > 0 else 0.0
+        return max(t_in - self.step_s, 0.0), t_out + self.step_s

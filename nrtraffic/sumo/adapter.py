@@ -473,8 +473,10 @@ class SumoSession:
     def stop_at(self, vid: str, lane: str, pos_m: float) -> None:
         """Make SUMO's driver stop with its front bumper at ``pos_m`` [m] on ``lane`` (a lane of a
         normal edge) and wait there until :meth:`resume`; from then on it disregards the right of
-        way at the junction (speed mode 23: every other check stays on), which the coordinator's
-        reservation gives it instead. Where it is already too close to brake for that stop (SUMO
+        way at the junction and the vehicles already inside it (speed mode 55: every other check
+        stays on), which the coordinator's reservation gives it instead: SUMO would otherwise brake
+        in the junction for a foe whose reserved crossing the reservation already keeps apart, and
+        come out later than reserved. Where it is already too close to brake for that stop (SUMO
         refuses it), it is told to stop as soon as it can instead."""
         edge, index = lane.rsplit("_", 1)
         v = self.traci.vehicle
@@ -482,7 +484,7 @@ class SumoSession:
             v.setStop(vid, edge, pos=float(pos_m), laneIndex=int(index), duration=1e7)
         except self.traci.TraCIException:  # too close to brake for it: it stops as soon as it can
             v.setSpeed(vid, 0.0)
-        v.setSpeedMode(vid, DEFAULT_SPEED_MODE & ~8)
+        v.setSpeedMode(vid, (DEFAULT_SPEED_MODE & ~8) | 32)
 
     def is_stopped(self, vid: str) -> bool:
         """Whether a vehicle stands at a stop given by :meth:`stop_at`."""
@@ -497,6 +499,12 @@ class SumoSession:
         SUMO had refused it)."""
         if self.traci.vehicle.getStops(vid, 1):
             self.traci.vehicle.replaceStop(vid, 0, "")
+
+    def leader(self, vid: str, dist_m: float) -> str | None:
+        """The vehicle ahead of ``vid`` on the lanes it will take, within ``dist_m`` [m] of its front
+        bumper (SUMO's leader search, which may look further: those further are left out), or None."""
+        found = self.traci.vehicle.getLeader(vid, float(dist_m))
+        return found[0] if found and found[0] and found[1] <= dist_m else None
 
     def resume(self, vid: str) -> None:
         """End the stop of :meth:`stop_at`: SUMO's driver sets off."""
