@@ -268,6 +268,25 @@ def test_scenarios_that_would_run_wrong_exit_2_naming_the_problem(old, new, extr
     assert not (tmp_path / "o" / "summary.json").exists()
 
 
+@pytest.mark.parametrize("flag", [["--xml-validation", "always"], ["-X", "always"]])
+def test_sumo_schema_validation_always_accepts_the_files_the_run_writes(flag, tmp_path, capsys):
+    """With SUMO's --xml-validation always, every input must declare its schema: the queue
+    detectors the run writes declared none (and their ids held '|'), so SUMO stopped at its start
+    (exit 1). Now the run finishes and measures its queues; a recorded run's queues.xml, of
+    detectors named the earlier way, still reads."""
+    from nrtraffic.results import parse_queues
+
+    out = tmp_path / "o"
+    args = ", ".join(f'"{a}"' for a in flag)
+    assert main(["run", str(CROSS4), "--out", str(out), "--duration", "30", "--set", "outputs.warmup_s=0",
+                 "--set", f"sumo.extra_args=[{args}]", "--no-progress"]) == 0, capsys.readouterr().err
+    assert json.loads((out / "summary.json").read_text())["status"] == "ok"
+    assert sorted(pd.read_csv(out / "approaches.csv")["approach"]) == ["E_in", "N_in", "S_in", "W_in"]
+    assert sorted(parse_queues(out / "queues.xml")["approach"].unique()) == ["E_in", "N_in", "S_in", "W_in"]
+    earlier = parse_queues(ROOT / "tests" / "golden" / "cross4" / "queues.xml")
+    assert sorted(earlier["approach"].unique()) == ["E_in", "N_in", "S_in", "W_in"]
+
+
 def test_out_holding_another_run_is_refused_unless_forced(tmp_path, capsys):
     out = tmp_path / "o"
     base = ["run", str(CROSS4), "--out", str(out), "--no-progress", "--set", "outputs.warmup_s=0"]
