@@ -10,7 +10,6 @@ from nrtraffic.limits import MAX_DURATION_S, MAX_SEED  # (light: the flags are c
 from runners import interrupts
 from runners.api import OutputError, slug, writable_dir  # noqa: F401 (shared with the Python API)
 from runners.api import claim as _claim
-from runners.api import write_report as _report
 
 
 def _bounded(parse, lo, hi, name: str, what: str):
@@ -357,8 +356,7 @@ def _main(argv: list[str] | None) -> int:
             sc = scenario.load(args.scenario, args.overrides, allow_outside=args.allow_outside)
             _claim(args.out, sc, args.seed, args.duration, f"sumo_{args.junction}", args.force)
             res = run_baseline(sc, args.junction, args.out, seed=args.seed, duration_s=args.duration,
-                               progress=not args.no_progress)
-            _report(args.out)
+                               progress=not args.no_progress, report=True)
             _print_summary(res.summary, args.out)
             return 0
         if args.command == "sweep":
@@ -428,8 +426,7 @@ def _cmd_run(args) -> int:
             raise DisplayError(no_display)
     _claim(out, sc, seed, args.duration, "nrtraffic", args.force)
     res = run_scenario(sc, out, seed=seed, duration_s=args.duration, progress=not args.no_progress, gui=args.gui,
-                       gui_delay_ms=args.gui_delay)
-    _report(out)
+                       gui_delay_ms=args.gui_delay, report=True)
     _print_summary(res.summary, out)
     return 0
 

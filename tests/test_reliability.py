@@ -729,7 +729,7 @@ def test_a_disk_that_fills_while_the_report_is_written_says_failed(tmp_path, mon
     and summary.json says failed and why (it said ok)."""
     from nrtraffic import report
 
-    def full(run_dir):
+    def full(run_dir, **kw):
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(report, "run_report", full)
@@ -738,6 +738,45 @@ def test_a_disk_that_fills_while_the_report_is_written_says_failed(tmp_path, mon
     assert code == 1 and "No space left on device" in capsys.readouterr().err
     s = json.loads((out / "summary.json").read_text())
     assert s["status"] == "failed" and "its report could not be written" in s["error"]
+
+
+@pytest.mark.parametrize("command", [["run"], ["baseline", "--junction", "priority"]])
+def test_a_run_says_ok_only_once_its_report_is_written(command, tmp_path, monkeypatch, capsys):
+    """summary.json said ok before the figures and report.html were made: a report that failed
+    (here an error in a figure, not the disk) left a run that said ok, and a traceback. Now the
+    summary says "running" while the report is made and "ok" only after it and the manifest; a
+    failed report is exit 1 in one line, and the summary says failed and why."""
+    from nrtraffic import report
+
+    real = report.run_report
+    seen = []
+
+    def watched(run_dir, **kw):
+        seen.append(json.loads((run_dir / "summary.json").read_text())["status"])
+        return real(run_dir, **kw)
+
+    def broken(run_dir, **kw):
+        seen.append(json.loads((run_dir / "summary.json").read_text())["status"])
+        raise ValueError("a figure that cannot be drawn")
+
+    base = [command[0], str(CROSS4), *command[1:], "--duration", "30", "--set", "outputs.warmup_s=0", "--no-progress"]
+    monkeypatch.setattr(report, "run_report", watched)
+    ok = tmp_path / "ok"
+    assert main(base + ["--out", str(ok)]) == 0
+    assert seen == ["running"] and json.loads((ok / "summary.json").read_text())["status"] == "ok"
+    assert "report.html" in json.loads((ok / "manifest.json").read_text())["created"]
+    assert all((ok / f).is_file() for f in ("report.html", "vehicles.csv", "movements.csv", "approaches.csv"))
+    assert "<td>ok</td>" in (ok / "report.html").read_text()  # (the report shows the run's final status)
+    seen.clear()
+    monkeypatch.setattr(report, "run_report", broken)
+    out = tmp_path / "failed"
+    capsys.readouterr()
+    assert main(base + ["--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert seen == ["running"] and "Traceback" not in err and "a figure that cannot be drawn" in err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "failed"
+    assert s["error"] == "the run finished, but its report could not be written: ValueError: a figure that cannot be drawn"
 
 
 def test_force_does_not_write_over_files_no_earlier_run_created(tmp_path, capsys):
