@@ -92,6 +92,46 @@ def test_sigterm_or_ctrl_c_at_any_moment_leaves_a_readable_summary(tmp_path):
             assert 0 <= s["sim_time_s"] < 3600
 
 
+# the command as a process, with a signal sent to it at a chosen moment: when a module is first
+# imported (before any code of it runs), or when the interpreter exits after the command returned
+_SIGNAL_AT = """
+import atexit, importlib.abc, os, runpy, signal, sys
+sig, at = signal.Signals[sys.argv.pop(1)], sys.argv.pop(1)
+class At(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        if name == at:
+            sys.meta_path.remove(self)
+            os.kill(os.getpid(), sig)
+if at == "exit":
+    atexit.register(os.kill, os.getpid(), sig)
+else:
+    sys.meta_path.insert(0, At())
+runpy.run_module("runners.cli", run_name="__main__", alter_sys=True)
+"""
+
+
+@pytest.mark.parametrize("at", ["nrtraffic", "runners.api", "exit"])
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+def test_a_signal_while_the_command_starts_or_exits_is_handled(at, sig, tmp_path):
+    """The command's handlers were installed only after it had imported nrtraffic and the API's
+    helpers, and taken off before the interpreter exited: a signal then was a KeyboardInterrupt
+    traceback (SIGINT) or a kill (SIGTERM, status -15) that left no summary. Now one while nrtraffic
+    is imported waits for the run directory and stops the run there (exit 1, "failed" naming the
+    signal); one after the command has returned its status, while the process exits, is noted and
+    changes nothing: the run is complete."""
+    out = tmp_path / "run"
+    proc = subprocess.run([sys.executable, "-c", _SIGNAL_AT, sig, at, "run", str(CROSS4), "--duration", "10",
+                           "--set", "outputs.warmup_s=0", "--out", str(out), "--no-progress"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert "Traceback" not in proc.stderr, proc.stderr
+    s = json.loads((out / "summary.json").read_text())
+    if at == "exit":
+        assert proc.returncode == 0 and s["status"] == "ok" and (out / "report.html").is_file(), proc.stderr
+    else:
+        assert proc.returncode == 1, proc.stderr
+        assert s["status"] == "failed" and sig in s["error"] and sig in proc.stderr
+
+
 def test_sigkill_leaves_the_last_checkpoint_and_the_trajectories_up_to_it(tmp_path):
     out = tmp_path / "run"
     proc = _start_long_run(out)
