@@ -11,7 +11,7 @@ import pandas as pd
 
 from nrtraffic import _kernel_cache
 from nrtraffic import scenario as scenario_mod
-from nrtraffic.engine import Engine, RunFailed
+from nrtraffic.engine import Engine, RunFailed, describe
 from nrtraffic.results import (RunResult, TrajectoryWriter, write_atomic, write_movements, write_summary, write_table,
                                write_vehicles)
 from nrtraffic.sumo.network import NetworkError, check_scenario, check_sumo_args
@@ -342,7 +342,7 @@ def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: 
     except KeyboardInterrupt as exc:  # before the engine ran, or while it gathered its figures
         t = engine.t if engine is not None else 0.0
         when = f"at t={t:.2f} s, its figures not gathered" if t > 0 else "before the simulation started"
-        raise failed(f"stopped {when}: {type(exc).__name__}: {exc}", t) from exc
+        raise failed(f"stopped {when}: {describe(exc)}", t) from exc
     except NetworkError:  # the junction or its zones do not suit: nothing was simulated, nothing is kept
         update_manifest(out)
         remove_run_files(out, keep=sc.network_path)

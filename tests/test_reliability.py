@@ -422,6 +422,40 @@ def test_an_interrupt_inside_compiled_code_is_reported_as_the_interrupt():
     assert _interrupt_in(ValueError("no interrupt here")) is None
 
 
+@pytest.mark.parametrize("sig, other", [("SIGTERM", ("SIGINT", "Ctrl-C", "KeyboardInterrupt")),
+                                        ("SIGINT", ("SIGTERM", "Terminated"))])
+def test_a_replay_stopped_by_a_signal_names_that_signal(sig, other, tmp_path, monkeypatch, capsys):
+    """A signal whose interrupt a library swallowed while the replay ran (numba, say) still stops
+    it, at the engine's next look; the message said "KeyboardInterrupt", Ctrl-C's, for a SIGTERM.
+    Now it names the signal that came, and nothing else."""
+    import os
+
+    from nrtraffic import engine as engine_mod
+
+    tick = engine_mod.Engine._tick
+    sent = []
+
+    def swallowing(self, *args, **kwargs):
+        if not sent:
+            sent.append(sig)
+            try:  # (a library that catches the interrupt raised in it and goes on)
+                os.kill(os.getpid(), getattr(signal, sig))
+                for _ in range(1000):
+                    pass
+            except KeyboardInterrupt:
+                pass
+        return tick(self, *args, **kwargs)
+
+    monkeypatch.setattr(engine_mod.Engine, "_tick", swallowing)
+    out = tmp_path / "replay"
+    assert main(["replay", str(ROOT / "tests" / "golden" / "cross4"), "--out", str(out), "--no-progress"]) == 1
+    err = capsys.readouterr().err
+    assert sent and f"stopped by {sig}" in err and "Traceback" not in err, err
+    assert not any(word in err for word in other), err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "failed" and sig in s["error"] and not any(word in s["error"] for word in other)
+
+
 _ROUTE_CASES = {
     "zero_rate": ('<flow id="x" route="r" begin="0" end="100" vehsPerHour="0"/><route id="r" edges="W_in E_out"/>',
                   "vehsPerHour must be > 0"),
