@@ -72,6 +72,18 @@ def _interrupt_in(exc: BaseException) -> BaseException | None:
     return None
 
 
+class SignalStop(KeyboardInterrupt):
+    """The signal (SIGTERM, SIGINT) that stopped the run, by its name, where its own interrupt was
+    lost in a library that swallowed it (:class:`Engine`'s ``stop_requested``): the run's error
+    names that signal, never Ctrl-C's KeyboardInterrupt for a SIGTERM."""
+
+
+def describe(error: BaseException) -> str:
+    """``error`` as a run's summary and the command say it: its type and message, or the signal
+    alone for a :class:`SignalStop`."""
+    return f"stopped by {error}" if isinstance(error, SignalStop) else f"{type(error).__name__}: {error}"
+
+
 class RunFailed(RuntimeError):
     """A run stopped early; ``result`` holds what was finished."""
 
@@ -224,7 +236,7 @@ class Engine:
                 error = error or exc
         result = self._result(wall, error)
         if error is not None:
-            raise RunFailed(f"run stopped at t={self.t:.2f} s: {type(error).__name__}: {error}", result) from error
+            raise RunFailed(f"run stopped at t={self.t:.2f} s: {describe(error)}", result) from error
         return result
 
     def _build_junctions(self, st: RunState) -> None:
@@ -292,7 +304,7 @@ class Engine:
                     self._watch()
                     stop = self.stop_requested() if self.stop_requested is not None else None
                     if stop:  # (a library the signal came into may have swallowed its interrupt)
-                        raise KeyboardInterrupt(f"stopped by {stop}")
+                        raise SignalStop(stop)
                 step += 1
                 bar.update(dt)
                 if plain_progress and st.t + dt >= next_report:  # not a terminal: a line every 10 %

@@ -99,12 +99,13 @@ def display(df: pd.DataFrame) -> pd.DataFrame:
 RUN_FIGURES = ("movements.png", "delays.png", "queues.png", "time_space.png", "arterial.png")
 
 
-def run_figures(run_dir: Path) -> list[Path]:
+def run_figures(run_dir: Path, summary: dict | None = None) -> list[Path]:
     """The figures of a run directory that its files allow: conflict areas (``movements.png``),
     delay per movement with the LOS bands (``delays.png``), queues per approach (``queues.png``),
     the time-space diagram per approach road (``time_space.png``) and, on a corridor, the arterial
     diagram (``arterial.png``); both of every vehicle where the run wrote fcd.xml, else of the
-    controlled vehicles while under control (:mod:`nrtraffic.timespace`)."""
+    controlled vehicles while under control (:mod:`nrtraffic.timespace`). ``summary``: the run's
+    (default: its ``summary.json``)."""
     from nrtraffic import plots
     from nrtraffic.metrics import run_is_signalised
     from nrtraffic import timespace
@@ -112,7 +113,8 @@ def run_figures(run_dir: Path) -> list[Path]:
 
     run_dir = Path(run_dir)
     made = []
-    summary = json.loads((run_dir / "summary.json").read_text())
+    if summary is None:
+        summary = json.loads((run_dir / "summary.json").read_text())
     doc = json.loads((run_dir / "movements.json").read_text()) if (run_dir / "movements.json").is_file() else {}
     if doc.get("conflict_areas"):
         made.append(plots.conflict_areas(doc, run_dir / "movements.png"))
@@ -224,12 +226,14 @@ def _run_title(s: dict) -> str:
     return f"{s.get('scenario', '')}: {s.get('control', '')}, seed {s.get('seed', '')}"
 
 
-def run_report(run_dir: Path) -> Path:
+def run_report(run_dir: Path, summary: dict | None = None) -> Path:
     """``report.html`` of a run directory: its headline figures, its corridor and driver figures
-    where it has them, the movement and approach tables and its figures (made here if missing)."""
+    where it has them, the movement and approach tables and its figures (made here if missing).
+    ``summary``: the run's (default: its ``summary.json``; a run writes its final one after the
+    report, so that it says ok only once the report is there)."""
     run_dir = Path(run_dir)
-    run_figures(run_dir)
-    s = json.loads((run_dir / "summary.json").read_text())
+    s = json.loads((run_dir / "summary.json").read_text()) if summary is None else summary
+    run_figures(run_dir, s)
     head = pd.DataFrame([(human(k), fmt(k, s[k])) for k in HEADLINE if k in s], columns=["figure", "value"])
     body = ["<p class='note'>nrtraffic run directory " + html.escape(str(run_dir)) + "; definitions in the docs "
             "(outputs): delay from the control-zone entry to the merging-zone exit, plus the wait to enter the "

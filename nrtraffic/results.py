@@ -292,12 +292,23 @@ def write_vehicles(path: Path, vehicles: pd.DataFrame) -> None:
     write_table(path, vehicles)
 
 
+QUEUE_DETECTOR = "queue:"  # a queue detector's id: this, then its lane's id (SUMO's schema allows no '|')
+
+
+def queue_approach(detector_id: str) -> str:
+    """The approach (edge) of a queue detector: ``queue:<lane>``, the lane's edge (SUMO names a
+    lane ``<edge>_<index>``); runs of earlier versions named it ``queue|<approach>|<lane>``."""
+    if "|" in detector_id:
+        return detector_id.split("|")[1]
+    return detector_id.removeprefix(QUEUE_DETECTOR).rsplit("_", 1)[0]
+
+
 QUEUE_COLUMNS = ["approach", "begin_s", "end_s", "mean_queue_veh", "max_queue_veh", "mean_queue_m", "max_queue_m"]
 
 
 def parse_queues(path: Path, t0_s: float = 0.0) -> pd.DataFrame:
     """Queues per approach and detector period from SUMO's lane-area detectors (``queues.xml``,
-    detector ids ``queue|approach|lane``): ``mean_queue_veh`` is SUMO's time-mean of the longest jam
+    detector ids ``queue:<lane>``, :func:`queue_approach`): ``mean_queue_veh`` is SUMO's time-mean of the longest jam
     (``meanMaxJamLengthInVehicles``), ``max_queue_veh`` the longest (``maxJamLengthInVehicles``),
     each summed over the approach's lanes; the same in metres. Periods are measured from the run's
     start, SUMO's clock ``t0_s`` (``scenario.begin_s``) [s]."""
@@ -309,7 +320,7 @@ def parse_queues(path: Path, t0_s: float = 0.0) -> pd.DataFrame:
         root = ET.parse(path).getroot()
     except ET.ParseError:  # a run that stopped early may leave it unterminated
         return pd.DataFrame(columns=QUEUE_COLUMNS)
-    rows = [(iv.get("id").split("|")[1], float(iv.get("begin")) - t0_s, float(iv.get("end")) - t0_s,
+    rows = [(queue_approach(iv.get("id")), float(iv.get("begin")) - t0_s, float(iv.get("end")) - t0_s,
              float(iv.get("meanMaxJamLengthInVehicles")), float(iv.get("maxJamLengthInVehicles")),
              float(iv.get("meanMaxJamLengthInMeters")), float(iv.get("maxJamLengthInMeters")))
             for iv in root.iter("interval")]

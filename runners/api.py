@@ -80,35 +80,6 @@ def claim(out: Path, sc, seed, duration, control: str, force: bool) -> None:
         raise OutputError(f"--out {out}: cannot clear the earlier run: {exc}") from None
 
 
-def write_report(out: Path) -> None:
-    """The run's figures and ``report.html`` (single runs and baselines; a sweep's runs get none)."""
-    from nrtraffic.report import run_report
-    from runners.single import update_manifest
-
-    try:
-        run_report(out)
-    except OSError as exc:  # (a full disk): the run is not done until its report is written
-        _mark_failed(out, f"the run finished, but its report could not be written: {exc.strerror or exc}")
-        raise
-    finally:
-        try:
-            update_manifest(out)
-        except OSError:
-            pass  # (a full disk: the manifest keeps what it had)
-
-
-def _mark_failed(out: Path, why: str) -> None:
-    """summary.json says failed and why (written in the space the earlier one holds, on a full disk)."""
-    from nrtraffic.results import write_summary
-
-    try:
-        s = json.loads((Path(out) / "summary.json").read_text())
-        s["status"], s["error"] = "failed", why
-        write_summary(Path(out) / "summary.json", s)
-    except (OSError, ValueError):
-        pass
-
-
 # ------------------------------------------------------------------ results
 class Run:
     """A run directory, read when asked (each table once).
@@ -309,9 +280,7 @@ def run(scenario: str | Path, *, seed: int | None = None, duration_s: float | No
     seed, duration_s = _seed_duration(sc, seed, duration_s)
     out = _out(out, f"{slug(sc.general.name)}-seed{seed}")
     claim(out, sc, seed, duration_s, "nrtraffic", force)
-    run_scenario(sc, out, seed=seed, duration_s=duration_s, progress=progress)
-    if report:
-        write_report(out)
+    run_scenario(sc, out, seed=seed, duration_s=duration_s, progress=progress, report=report)
     return Run(out)
 
 
@@ -329,9 +298,7 @@ def baseline(scenario: str | Path, junction: str, *, seed: int | None = None, du
     seed, duration_s = _seed_duration(sc, seed, duration_s)
     out = _out(out, f"{slug(sc.general.name)}-seed{seed}-{junction}")
     claim(out, sc, seed, duration_s, f"sumo_{junction}", force)
-    run_baseline(sc, junction, out, seed=seed, duration_s=duration_s, progress=progress)
-    if report:
-        write_report(out)
+    run_baseline(sc, junction, out, seed=seed, duration_s=duration_s, progress=progress, report=report)
     return Run(out)
 
 

@@ -11,7 +11,7 @@ from runners.single import execute, prepare_run_dir
 
 
 def run_baseline(sc: scenario_mod.Scenario, junction_type: str, out: Path, seed: int | None = None,
-                 duration_s: float | None = None, progress: bool = False) -> RunResult:
+                 duration_s: float | None = None, progress: bool = False, report: bool = False) -> RunResult:
     """SUMO drives every vehicle of the scenario's demand through its controlled junctions under
     ``junction_type`` (:data:`~nrtraffic.sumo.netbuild.BASELINES`); the run directory has the same
     files and figures (tracking and barrier figures are null).
@@ -24,7 +24,10 @@ def run_baseline(sc: scenario_mod.Scenario, junction_type: str, out: Path, seed:
     - ``traffic_light``, ``priority``, ``allway_stop``, ``right_before_left``: the junctions rebuilt
       with SUMO's default for that control; ``traffic_light_coordinated``: traffic lights at every
       junction, their offsets set for green waves along the run's own demand by SUMO's
-      tlsCoordinator (:func:`coordinate_signals`)."""
+      tlsCoordinator (:func:`coordinate_signals`).
+
+    ``report``: also the figures and ``report.html``, before the final ``summary.json``
+    (:func:`~runners.single.execute`)."""
     ids = [j.id for j in sc.controlled_junctions()]
     if not ids:
         raise scenario_mod.ScenarioError("baselines need a scenario with a [junction] or [[junctions]] (rebuilt "
@@ -45,7 +48,7 @@ def run_baseline(sc: scenario_mod.Scenario, junction_type: str, out: Path, seed:
     if junction_type == "traffic_light_coordinated":
         additional = (coordinate_signals(sc, net, out / "sumo", seed, duration_s),)
     # the trajectory file stays empty: nothing is tracked
-    return execute(sc, out, seed, duration_s, progress, extra_summary={"junction_type": junction_type},
+    return execute(sc, out, seed, duration_s, progress, extra_summary={"junction_type": junction_type}, report=report,
                    control=False, network=net, label=f"sumo_{junction_type}", additional=additional,
                    signalised=signalised)
 

@@ -1,4 +1,10 @@
-"""The ``nrtraffic`` command."""
+"""The ``nrtraffic`` command.
+
+Nothing but the standard library's argument parser and :mod:`runners.interrupts` is imported
+before :func:`main` has installed the command's handling of SIGTERM and Ctrl-C: nrtraffic itself
+(even its limits: importing the package reads every source file of it, to keep the compiled
+kernels fresh) and the Python API's helpers are imported when first used.
+"""
 
 from __future__ import annotations
 
@@ -6,11 +12,17 @@ import argparse
 import sys
 from pathlib import Path
 
-from nrtraffic.limits import MAX_DURATION_S, MAX_SEED  # (light: the flags are checked before SUMO loads)
 from runners import interrupts
-from runners.api import OutputError, slug, writable_dir  # noqa: F401 (shared with the Python API)
-from runners.api import claim as _claim
-from runners.api import write_report as _report
+
+_SHARED = ("OutputError", "slug", "writable_dir")  # helpers shared with the Python API (runners.api)
+
+
+def __getattr__(name: str):
+    if name in _SHARED:
+        from runners import api
+
+        return getattr(api, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def _bounded(parse, lo, hi, name: str, what: str):
@@ -27,10 +39,21 @@ def _bounded(parse, lo, hi, name: str, what: str):
     return check
 
 
-# --duration: simulated seconds, 0 (until every vehicle has left) to a week
-_duration = _bounded(float, 0.0, MAX_DURATION_S, "a number of seconds",
-                     f"the simulated time must be between 0 and {MAX_DURATION_S:.0f} s")
-_seed = _bounded(int, 0, MAX_SEED, "a whole number", f"a seed must be between 0 and {MAX_SEED}")
+def _duration(text: str) -> float:
+    """--duration: simulated seconds, 0 (until every vehicle has left) to a week."""
+    from nrtraffic.limits import MAX_DURATION_S
+
+    return _bounded(float, 0.0, MAX_DURATION_S, "a number of seconds",
+                    f"the simulated time must be between 0 and {MAX_DURATION_S:.0f} s")(text)
+
+
+def _seed(text: str) -> int:
+    """--seed: 0 to the largest seed SUMO takes."""
+    from nrtraffic.limits import MAX_SEED
+
+    return _bounded(int, 0, MAX_SEED, "a whole number", f"a seed must be between 0 and {MAX_SEED}")(text)
+
+
 _tolerance = _bounded(float, 0.0, float("inf"), "a number", "a tolerance must be finite and >= 0")
 GUI_DELAY_MS = 100.0  # sumo-gui's delay between steps by default [ms]: 0.1 s steps at about real time
 _gui_delay = _bounded(float, 0.0, 10000.0, "a number of milliseconds", "the delay must be between 0 and 10000 ms")
@@ -239,10 +262,6 @@ def version_text() -> str:
     return f"nrtraffic {__version__}\n{line}"
 
 
-class DisplayError(OutputError):
-    """``--gui`` without a display (exit 2, before SUMO starts)."""
-
-
 def display_missing(out: Path) -> str | None:
     """Why ``--gui`` cannot open sumo-gui here: on Linux and the BSDs, a graphical program needs
     ``DISPLAY`` (X11) or ``WAYLAND_DISPLAY``; None where one is set, or on macOS and Windows. The
@@ -288,15 +307,21 @@ def _add_schema(sub) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """The ``nrtraffic`` command; returns its exit status. SIGTERM and Ctrl-C are handled from here
-    on (:mod:`runners.interrupts`): a run that they stop always leaves a summary.json."""
+    """The ``nrtraffic`` command; returns its exit status. SIGTERM and Ctrl-C are handled from its
+    first instruction (:mod:`runners.interrupts`; nothing heavy is imported before it): a run that
+    they stop always leaves a summary.json. As the process's command (``argv`` None: the console
+    script, ``python -m runners.cli``) the handlers stay installed when it returns, and a signal
+    after that is only noted (the process is exiting with its status); called with ``argv`` (from
+    Python) the caller's handlers are put back."""
     interrupts.install()
     try:
         try:
             code = _main(argv)
         except KeyboardInterrupt as exc:  # (before the command's own handling: while it starts)
+            interrupts.finish()
             print(f"nrtraffic: stopped: {exc or 'interrupted'}", file=sys.stderr)
             return 1
+        interrupts.finish()
         stop = interrupts.pending()
         if stop is not None and code == 0:
             print(f"nrtraffic: stopped by {stop} after the run had finished; its outputs are complete",
@@ -304,7 +329,8 @@ def main(argv: list[str] | None = None) -> int:
             code = 1
         return code
     finally:
-        interrupts.uninstall()
+        if argv is not None:
+            interrupts.uninstall()
 
 
 def _main(argv: list[str] | None) -> int:
@@ -340,6 +366,7 @@ def _main(argv: list[str] | None) -> int:
     from nrtraffic.scenario import ScenarioError
     from nrtraffic.sumo.network import NetworkError
     from nrtraffic.sumo.netbuild import SumoToolError
+    from runners.api import OutputError
     from runners.replay import ReplayError
     from runners.sweep import SweepError
 
@@ -352,13 +379,13 @@ def _main(argv: list[str] | None) -> int:
             return paper.main(args)
         if args.command == "baseline":
             from nrtraffic import scenario
+            from runners.api import claim as _claim
             from runners.baseline import run_baseline
 
             sc = scenario.load(args.scenario, args.overrides, allow_outside=args.allow_outside)
             _claim(args.out, sc, args.seed, args.duration, f"sumo_{args.junction}", args.force)
             res = run_baseline(sc, args.junction, args.out, seed=args.seed, duration_s=args.duration,
-                               progress=not args.no_progress)
-            _report(args.out)
+                               progress=not args.no_progress, report=True)
             _print_summary(res.summary, args.out)
             return 0
         if args.command == "sweep":
@@ -417,6 +444,8 @@ def _main(argv: list[str] | None) -> int:
 
 def _cmd_run(args) -> int:
     from nrtraffic import scenario
+    from runners.api import OutputError, slug
+    from runners.api import claim as _claim
     from runners.single import run_scenario
 
     sc = scenario.load(args.scenario, args.overrides, allow_outside=args.allow_outside)
@@ -425,11 +454,10 @@ def _cmd_run(args) -> int:
     if args.gui:
         no_display = display_missing(out)
         if no_display:
-            raise DisplayError(no_display)
+            raise OutputError(no_display)  # (exit 2, before SUMO starts)
     _claim(out, sc, seed, args.duration, "nrtraffic", args.force)
     res = run_scenario(sc, out, seed=seed, duration_s=args.duration, progress=not args.no_progress, gui=args.gui,
-                       gui_delay_ms=args.gui_delay)
-    _report(out)
+                       gui_delay_ms=args.gui_delay, report=True)
     _print_summary(res.summary, out)
     return 0
 

@@ -14,7 +14,7 @@ def main(args) -> int:
     ``runs/<scenario>-compare``) and print it. Exit status 2, with the reason, when the run
     directories cannot be compared or the output folder cannot be used."""
     from nrtraffic.compare import CompareError, compare, console, write
-    from runners.cli import OutputError, slug, writable_dir
+    from runners.api import OutputError, slug, writable_dir
 
     try:
         c = compare(args.run_dirs)

@@ -8,7 +8,9 @@ finished is written and ``summary.json`` says ``"status": "failed"`` and why; fu
 ignored while that is written. A second signal while one is deferred stops at once (a way out of a
 slow check). Once the run's results are written the
 command defers again (:func:`defer`), so that its figures and report are finished; :func:`pending`
-then tells the command that it was asked to stop.
+then tells the command that it was asked to stop. Once the command has its exit status
+(:func:`finish`) a signal is only noted, whichever came before: the process keeps the handlers
+until it exits, so that a signal while the interpreter shuts down is neither a traceback nor a kill.
 
 Only the command installs these handlers (:func:`install`, in the main thread); in a library call,
 a test or a sweep's worker :func:`arm` and :func:`defer` do nothing.
@@ -28,6 +30,7 @@ _installed: dict[int, object] = {}  # signal -> the handler before install()
 _armed = False
 _pending: int | None = None
 _received: int | None = None  # the signal that interrupted the run (armed), for its summary
+_finished = False  # the command has its exit status: a signal is noted, never raised
 
 
 def _interrupt(signum: int) -> KeyboardInterrupt:
@@ -38,6 +41,9 @@ def _interrupt(signum: int) -> KeyboardInterrupt:
 
 def _handler(signum, frame) -> None:
     global _pending, _received
+    if _finished:
+        _pending = _pending or signum
+        return
     if _armed and _received is not None:
         return  # one is enough: the run is stopping, let its clean-up finish
     if _armed or _pending is not None:
@@ -48,21 +54,21 @@ def _handler(signum, frame) -> None:
 
 def install() -> None:
     """Handle SIGTERM and SIGINT, deferred until :func:`arm` (main thread only; elsewhere nothing)."""
-    global _armed, _pending, _received
+    global _armed, _pending, _received, _finished
     if threading.current_thread() is not threading.main_thread():
         return
-    _armed, _pending, _received = False, None, None
+    _armed, _pending, _received, _finished = False, None, None, False
     for sig in (signal.SIGTERM, signal.SIGINT):
         _installed[sig] = signal.signal(sig, _handler)
 
 
 def uninstall() -> None:
     """The handlers from before :func:`install` back (the command returns to a caller)."""
-    global _armed, _pending, _received
+    global _armed, _pending, _received, _finished
     for sig, old in _installed.items():
         signal.signal(sig, old)
     _installed.clear()
-    _armed, _pending, _received = False, None, None
+    _armed, _pending, _received, _finished = False, None, None, False
 
 
 def arm() -> None:
@@ -81,6 +87,14 @@ def defer() -> None:
     global _armed
     if _installed:
         _armed = False
+
+
+def finish() -> None:
+    """The command has its exit status: from now on a signal is only noted (:func:`pending`), also
+    a second one while one is deferred, which would otherwise stop at once."""
+    global _armed, _finished
+    if _installed:
+        _armed, _finished = False, True
 
 
 def pending() -> str | None:

@@ -11,7 +11,7 @@ import pandas as pd
 
 from nrtraffic import _kernel_cache
 from nrtraffic import scenario as scenario_mod
-from nrtraffic.engine import Engine, RunFailed
+from nrtraffic.engine import Engine, RunFailed, describe
 from nrtraffic.results import (RunResult, TrajectoryWriter, write_atomic, write_movements, write_summary, write_table,
                                write_vehicles)
 from nrtraffic.sumo.network import NetworkError, check_scenario, check_sumo_args
@@ -146,11 +146,14 @@ def route_copies(sc: scenario_mod.Scenario) -> list[tuple[Path, str]]:
 
 
 def run_scenario(sc: scenario_mod.Scenario, out: Path, seed: int | None = None, duration_s: float | None = None,
-                 progress: bool = False, gui: bool = False, gui_delay_ms: float = 100.0) -> RunResult:
+                 progress: bool = False, gui: bool = False, gui_delay_ms: float = 100.0,
+                 report: bool = False) -> RunResult:
     """Run ``sc`` and write the run directory ``out``; raises :class:`RunFailed` after writing what
     was finished when the run stops early. ``gui``: in sumo-gui (:class:`~nrtraffic.sumo.adapter.SumoSession`),
-    ``gui_delay_ms`` [ms] between its steps."""
-    return execute(sc, prepare_run_dir(sc, out), seed, duration_s, progress, gui=gui, gui_delay_ms=gui_delay_ms)
+    ``gui_delay_ms`` [ms] between its steps. ``report``: also the figures and ``report.html``
+    (:func:`execute`)."""
+    return execute(sc, prepare_run_dir(sc, out), seed, duration_s, progress, report=report, gui=gui,
+                   gui_delay_ms=gui_delay_ms)
 
 
 def resolve(sc: scenario_mod.Scenario, seed: int | None, duration_s: float | None) -> scenario_mod.Scenario:
@@ -295,10 +298,13 @@ def remove_run_files(out: Path, keep: Path | None = None) -> None:
 
 
 def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: float | None, progress: bool,
-            extra_summary: dict | None = None, **engine_options) -> RunResult:
+            extra_summary: dict | None = None, report: bool = False, **engine_options) -> RunResult:
     """Record the configuration actually used (seed, duration) in ``scenario.resolved.toml``, run
     the engine (``engine_options`` go to :class:`Engine`) and write the results into the prepared
-    run directory ``out``, also when the run stops early."""
+    run directory ``out``, also when the run stops early. ``report``: the figures and
+    ``report.html`` too, made before the final ``summary.json``: until they are written it says
+    ``"status": "running"``, and where they cannot be, ``"failed"`` and why (:class:`RunFailed`).
+    The run's status is always the last file written."""
     resolved = resolve(sc, seed, duration_s)
     (out / "scenario.resolved.toml").write_text(resolved_text(sc, seed, duration_s))
     # a summary from the start, that holds the space of the last one (write_summary): a run that
@@ -336,7 +342,7 @@ def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: 
     except KeyboardInterrupt as exc:  # before the engine ran, or while it gathered its figures
         t = engine.t if engine is not None else 0.0
         when = f"at t={t:.2f} s, its figures not gathered" if t > 0 else "before the simulation started"
-        raise failed(f"stopped {when}: {type(exc).__name__}: {exc}", t) from exc
+        raise failed(f"stopped {when}: {describe(exc)}", t) from exc
     except NetworkError:  # the junction or its zones do not suit: nothing was simulated, nothing is kept
         update_manifest(out)
         remove_run_files(out, keep=sc.network_path)
@@ -355,11 +361,45 @@ def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: 
                      t) from exc
     result.summary.update(extra_summary or {})
     interrupts.defer()  # the run is done: a signal now lets its figures and report be finished
+    status = result.summary.get("status")
+    if report:  # (its status waits for the report: a run whose report failed never says ok)
+        result.summary["status"] = "running"
     try:
         _write(result, out)
     except OSError as exc:
         raise RunFailed(f"the run finished, but its figures could not be written into {out}: {exc}", result) from exc
+    if report:
+        result.summary["status"] = status
+        _report(result, out)
     return result
+
+
+def _report(result: RunResult, out: Path) -> None:
+    """The run's figures and ``report.html`` (:func:`~nrtraffic.report.run_report`, which shows the
+    run's final status), the manifest, then ``summary.json`` with that status, the last file
+    written. Where the report cannot be made (a full disk, an error in a figure; an interrupt
+    outside the command), ``summary.json`` says ``"status": "failed"`` and why, and
+    :class:`RunFailed` is raised."""
+    from nrtraffic import report
+
+    try:
+        report.run_report(out, summary=result.summary)
+    except (Exception, KeyboardInterrupt) as exc:  # noqa: BLE001 - any of them leaves the run without its report
+        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else f"{type(exc).__name__}: {exc}"
+        s = result.summary
+        s["status"] = "failed"
+        s["error"] = _named(f"the run finished, but its report could not be written: {why}")
+        try:
+            update_manifest(out)
+        except OSError:
+            pass  # (a full disk: the manifest keeps what it had; the summary holds its space)
+        write_summary(out / "summary.json", s)
+        raise RunFailed(s["error"], result) from exc
+    try:
+        update_manifest(out)
+    except OSError:
+        pass  # (a full disk: the manifest keeps what it had)
+    write_summary(out / "summary.json", result.summary)
 
 
 def _named(error: str) -> str:

@@ -92,6 +92,46 @@ def test_sigterm_or_ctrl_c_at_any_moment_leaves_a_readable_summary(tmp_path):
             assert 0 <= s["sim_time_s"] < 3600
 
 
+# the command as a process, with a signal sent to it at a chosen moment: when a module is first
+# imported (before any code of it runs), or when the interpreter exits after the command returned
+_SIGNAL_AT = """
+import atexit, importlib.abc, os, runpy, signal, sys
+sig, at = signal.Signals[sys.argv.pop(1)], sys.argv.pop(1)
+class At(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        if name == at:
+            sys.meta_path.remove(self)
+            os.kill(os.getpid(), sig)
+if at == "exit":
+    atexit.register(os.kill, os.getpid(), sig)
+else:
+    sys.meta_path.insert(0, At())
+runpy.run_module("runners.cli", run_name="__main__", alter_sys=True)
+"""
+
+
+@pytest.mark.parametrize("at", ["nrtraffic", "runners.api", "exit"])
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+def test_a_signal_while_the_command_starts_or_exits_is_handled(at, sig, tmp_path):
+    """The command's handlers were installed only after it had imported nrtraffic and the API's
+    helpers, and taken off before the interpreter exited: a signal then was a KeyboardInterrupt
+    traceback (SIGINT) or a kill (SIGTERM, status -15) that left no summary. Now one while nrtraffic
+    is imported waits for the run directory and stops the run there (exit 1, "failed" naming the
+    signal); one after the command has returned its status, while the process exits, is noted and
+    changes nothing: the run is complete."""
+    out = tmp_path / "run"
+    proc = subprocess.run([sys.executable, "-c", _SIGNAL_AT, sig, at, "run", str(CROSS4), "--duration", "10",
+                           "--set", "outputs.warmup_s=0", "--out", str(out), "--no-progress"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert "Traceback" not in proc.stderr, proc.stderr
+    s = json.loads((out / "summary.json").read_text())
+    if at == "exit":
+        assert proc.returncode == 0 and s["status"] == "ok" and (out / "report.html").is_file(), proc.stderr
+    else:
+        assert proc.returncode == 1, proc.stderr
+        assert s["status"] == "failed" and sig in s["error"] and sig in proc.stderr
+
+
 def test_sigkill_leaves_the_last_checkpoint_and_the_trajectories_up_to_it(tmp_path):
     out = tmp_path / "run"
     proc = _start_long_run(out)
@@ -268,6 +308,25 @@ def test_scenarios_that_would_run_wrong_exit_2_naming_the_problem(old, new, extr
     assert not (tmp_path / "o" / "summary.json").exists()
 
 
+@pytest.mark.parametrize("flag", [["--xml-validation", "always"], ["-X", "always"]])
+def test_sumo_schema_validation_always_accepts_the_files_the_run_writes(flag, tmp_path, capsys):
+    """With SUMO's --xml-validation always, every input must declare its schema: the queue
+    detectors the run writes declared none (and their ids held '|'), so SUMO stopped at its start
+    (exit 1). Now the run finishes and measures its queues; a recorded run's queues.xml, of
+    detectors named the earlier way, still reads."""
+    from nrtraffic.results import parse_queues
+
+    out = tmp_path / "o"
+    args = ", ".join(f'"{a}"' for a in flag)
+    assert main(["run", str(CROSS4), "--out", str(out), "--duration", "30", "--set", "outputs.warmup_s=0",
+                 "--set", f"sumo.extra_args=[{args}]", "--no-progress"]) == 0, capsys.readouterr().err
+    assert json.loads((out / "summary.json").read_text())["status"] == "ok"
+    assert sorted(pd.read_csv(out / "approaches.csv")["approach"]) == ["E_in", "N_in", "S_in", "W_in"]
+    assert sorted(parse_queues(out / "queues.xml")["approach"].unique()) == ["E_in", "N_in", "S_in", "W_in"]
+    earlier = parse_queues(ROOT / "tests" / "golden" / "cross4" / "queues.xml")
+    assert sorted(earlier["approach"].unique()) == ["E_in", "N_in", "S_in", "W_in"]
+
+
 def test_out_holding_another_run_is_refused_unless_forced(tmp_path, capsys):
     out = tmp_path / "o"
     base = ["run", str(CROSS4), "--out", str(out), "--no-progress", "--set", "outputs.warmup_s=0"]
@@ -361,6 +420,40 @@ def test_an_interrupt_inside_compiled_code_is_reported_as_the_interrupt():
         got = _interrupt_in(exc)
     assert isinstance(got, Terminated) and "SIGTERM" in str(got)
     assert _interrupt_in(ValueError("no interrupt here")) is None
+
+
+@pytest.mark.parametrize("sig, other", [("SIGTERM", ("SIGINT", "Ctrl-C", "KeyboardInterrupt")),
+                                        ("SIGINT", ("SIGTERM", "Terminated"))])
+def test_a_replay_stopped_by_a_signal_names_that_signal(sig, other, tmp_path, monkeypatch, capsys):
+    """A signal whose interrupt a library swallowed while the replay ran (numba, say) still stops
+    it, at the engine's next look; the message said "KeyboardInterrupt", Ctrl-C's, for a SIGTERM.
+    Now it names the signal that came, and nothing else."""
+    import os
+
+    from nrtraffic import engine as engine_mod
+
+    tick = engine_mod.Engine._tick
+    sent = []
+
+    def swallowing(self, *args, **kwargs):
+        if not sent:
+            sent.append(sig)
+            try:  # (a library that catches the interrupt raised in it and goes on)
+                os.kill(os.getpid(), getattr(signal, sig))
+                for _ in range(1000):
+                    pass
+            except KeyboardInterrupt:
+                pass
+        return tick(self, *args, **kwargs)
+
+    monkeypatch.setattr(engine_mod.Engine, "_tick", swallowing)
+    out = tmp_path / "replay"
+    assert main(["replay", str(ROOT / "tests" / "golden" / "cross4"), "--out", str(out), "--no-progress"]) == 1
+    err = capsys.readouterr().err
+    assert sent and f"stopped by {sig}" in err and "Traceback" not in err, err
+    assert not any(word in err for word in other), err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "failed" and sig in s["error"] and not any(word in s["error"] for word in other)
 
 
 _ROUTE_CASES = {
@@ -710,7 +803,7 @@ def test_a_disk_that_fills_while_the_report_is_written_says_failed(tmp_path, mon
     and summary.json says failed and why (it said ok)."""
     from nrtraffic import report
 
-    def full(run_dir):
+    def full(run_dir, **kw):
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(report, "run_report", full)
@@ -719,6 +812,45 @@ def test_a_disk_that_fills_while_the_report_is_written_says_failed(tmp_path, mon
     assert code == 1 and "No space left on device" in capsys.readouterr().err
     s = json.loads((out / "summary.json").read_text())
     assert s["status"] == "failed" and "its report could not be written" in s["error"]
+
+
+@pytest.mark.parametrize("command", [["run"], ["baseline", "--junction", "priority"]])
+def test_a_run_says_ok_only_once_its_report_is_written(command, tmp_path, monkeypatch, capsys):
+    """summary.json said ok before the figures and report.html were made: a report that failed
+    (here an error in a figure, not the disk) left a run that said ok, and a traceback. Now the
+    summary says "running" while the report is made and "ok" only after it and the manifest; a
+    failed report is exit 1 in one line, and the summary says failed and why."""
+    from nrtraffic import report
+
+    real = report.run_report
+    seen = []
+
+    def watched(run_dir, **kw):
+        seen.append(json.loads((run_dir / "summary.json").read_text())["status"])
+        return real(run_dir, **kw)
+
+    def broken(run_dir, **kw):
+        seen.append(json.loads((run_dir / "summary.json").read_text())["status"])
+        raise ValueError("a figure that cannot be drawn")
+
+    base = [command[0], str(CROSS4), *command[1:], "--duration", "30", "--set", "outputs.warmup_s=0", "--no-progress"]
+    monkeypatch.setattr(report, "run_report", watched)
+    ok = tmp_path / "ok"
+    assert main(base + ["--out", str(ok)]) == 0
+    assert seen == ["running"] and json.loads((ok / "summary.json").read_text())["status"] == "ok"
+    assert "report.html" in json.loads((ok / "manifest.json").read_text())["created"]
+    assert all((ok / f).is_file() for f in ("report.html", "vehicles.csv", "movements.csv", "approaches.csv"))
+    assert "<td>ok</td>" in (ok / "report.html").read_text()  # (the report shows the run's final status)
+    seen.clear()
+    monkeypatch.setattr(report, "run_report", broken)
+    out = tmp_path / "failed"
+    capsys.readouterr()
+    assert main(base + ["--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert seen == ["running"] and "Traceback" not in err and "a figure that cannot be drawn" in err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "failed"
+    assert s["error"] == "the run finished, but its report could not be written: ValueError: a figure that cannot be drawn"
 
 
 def test_force_does_not_write_over_files_no_earlier_run_created(tmp_path, capsys):

@@ -315,12 +315,15 @@ def queue_detectors(sc, layout: Layout, network_path: Path, workdir: Path, sdir:
     (with the ``additional`` files)."""
     if not sc.controlled_junctions():
         return ("--additional-files", ",".join(map(str, additional))) if additional else ()
+    from nrtraffic.results import QUEUE_DETECTOR
     from nrtraffic.sumo.network import edge_lanes
 
     out = (workdir / "queues.xml").resolve()
-    lines = ["<additional>"]
-    for appr, lane, length in edge_lanes(network_path, layout.approaches):
-        lines.append(f'    <laneAreaDetector id="queue|{appr}|{lane}" lanes="{lane}" pos="0" '
+    # (with its schema declared and ids that it allows, SUMO's --xml-validation always accepts the file)
+    lines = ['<additional xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" '
+             'xsi:noNamespaceSchemaLocation="http://sumo.dlr.de/xsd/additional_file.xsd">']
+    for _, lane, length in edge_lanes(network_path, layout.approaches):
+        lines.append(f'    <laneAreaDetector id="{QUEUE_DETECTOR}{lane}" lanes="{lane}" pos="0" '
                      f'endPos="{length:.3f}" friendlyPos="true" period="{QUEUE_PERIOD_S:g}" file="{out}"/>')
     lines.append("</additional>")
     path = sdir / "queues.add.xml"
