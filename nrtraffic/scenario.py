@@ -265,17 +265,19 @@ class HumanDriver:
     """``[human]``: the vehicles that ``demand.controlled_share`` leaves to SUMO (docs/mixed-traffic.md).
     SUMO's car-following model drives them, in the controlled vehicles' dimensions.
 
-    Their rule at a coordinated junction (docs/mixed-traffic.md): a human driver stops at SUMO's
-    stop line (or short of the first conflict area its body would touch there), and when it stands
-    there the coordinator reserves its crossing from a standing start, first come first served
-    with the controlled vehicles' reservations and after the vehicle ahead of it on its lane: it
-    may set off at the earliest time at which its occupancy of every conflict area, bounded from
-    both sides, overlaps no other reservation. The bounds: it accelerates at least at ``(1 -
-    sigma) * accel_mps2`` (Krauss's dawdling takes at most ``sigma * accel`` off) up to the slowest
-    speed limit on its path times its speed factor, and sets off at most one step after its
-    release; at most at ``accel_mps2`` up to the planning's ``v_max_mps``. A controlled vehicle that
-    reaches the control zone behind a human whose crossing is not reserved yet waits for it: it
-    is scheduled on the move once nothing unreserved is ahead of it, or, standing at the
+    Their rule at a coordinated junction (docs/mixed-traffic.md): a human driver on its way to its
+    stop line with nothing ahead of it goes on without stopping where its crossing, bounded from
+    where it is, fits now; otherwise it stops at SUMO's stop line (or short of the first conflict
+    area its body would touch there), and when it stands there, or stands in the queue within
+    ``queue_reach_m`` behind drivers already reserved, the coordinator reserves its crossing from
+    where it stands, first come first served with the controlled vehicles' reservations and after
+    the vehicle ahead of it on its lane (a human ahead: 1 s after its start). Its occupancy of every
+    conflict area is bounded from both sides by stepping SUMO's Krauss update: at the latest always
+    dawdling (``sigma``), up to the slowest speed limit on its path times its speed factor, one step
+    late; at the earliest never dawdling, up to the planning's ``v_max_mps``, one step early. Two
+    human drivers' occupancies are kept ``conflict_margin_s`` apart. A controlled vehicle that
+    reaches the control zone behind a human whose crossing is not reserved yet waits for it: it is
+    scheduled on the move once nothing unreserved is ahead of it, or, standing at the
     merging-zone entry by then, starts from rest on a reserved plan. In a baseline run (SUMO's own
     junction control) the same drivers obey that control.
     """
