@@ -160,8 +160,14 @@ def parse_baselines(text: str | None) -> list[str]:
 
 
 def point_name(point: tuple[tuple[str, str], ...]) -> str:
-    """Folder name of a grid point: ``key=value,key=value`` (``base`` without a grid)."""
-    return ",".join(f"{k}={v}" for k, v in point) or "base"
+    """Folder name of a grid point: ``key=value+key=value`` (``base`` without a grid). The run
+    directories under it are given to SUMO, which reads a comma in a file name as a list
+    separator, a colon as host:port and fails on quotes: those, and path separators, become
+    ``_``."""
+    from runners.api import SUMO_PATH_CHARS
+
+    name = "+".join(f"{k}={v}" for k, v in point) or "base"
+    return "".join("_" if c in SUMO_PATH_CHARS or c in "/\\" else c for c in name)
 
 
 def plan(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]]], controls: list[str], out: Path,

@@ -191,3 +191,26 @@ def test_a_sweep_into_a_file_says_how_far_it_is_and_the_first_run_says_it_compil
                            cwd=ROOT, timeout=600)
     assert again.returncode == 0, again.stderr[-2000:]
     assert NOTICE not in again.stderr
+
+
+def test_a_grid_of_two_keys_runs(tmp_path):
+    """Two grid keys and a string value: every run directory's path is one SUMO can read (a grid
+    point was named key=value,key=value, and SUMO read the comma in its route file's path as a list
+    separator: every run of a two-key grid failed at SUMO's start), and the runs finish."""
+    from runners.api import usable_path
+    from runners.sweep import plan
+
+    from conftest import SCENARIOS
+
+    jobs = plan(SCENARIOS / "cross4", [1], [("demand.rate_veh_h", ["300", "400"]),
+                                            ("coordinator.policy", ['"fifo"', '"batch"'])], ["nrtraffic"], tmp_path / "p")
+    dirs = {j.run_dir for j in jobs}
+    assert len(dirs) == 4
+    for d in dirs:
+        usable_path(d)  # (raises where SUMO would misread it)
+    out = tmp_path / "out"
+    code = main(["sweep", str(SCENARIOS / "cross4"), "--seeds", "1", "--grid", "demand.rate_veh_h=300,400",
+                 "--grid", "demand.controlled_share=0.5,1", "--workers", "1", "--out", str(out), "--no-progress",
+                 "--set", "scenario.duration_s=20", "--set", "outputs.warmup_s=0"])
+    df = pd.read_csv(out / "sweep.csv")
+    assert code == 0 and len(df) == 4 and (df["status"] == "ok").all()
