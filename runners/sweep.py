@@ -817,9 +817,6 @@ def driver_figure(df: pd.DataFrame, summ: pd.DataFrame, path: Path) -> None:
     per run, against the grid value per control (means over seeds; band: 95 % interval)."""
     from nrtraffic.plots import plt
 
-    xlabel, x, ticks = _x_axis(summ)
-    if xlabel == "demand.controlled_share":
-        xlabel = "share of controlled vehicles"
     fig, axes = plt.subplots(1, 3, figsize=(12.5, 3.8))
     ok = df[df["status"] == "ok"].copy()
     ok["pairs"] = sum(pd.to_numeric(ok.get(f"collisions_{k}"), errors="coerce").fillna(0)
@@ -845,6 +842,30 @@ def driver_figure(df: pd.DataFrame, summ: pd.DataFrame, path: Path) -> None:
         fig.savefig(path, dpi=120)
         plt.close(fig)
         return
+    facet = _facet_key(summ)
+    rows = [(None, summ, ok)] if facet is None else [
+        (f"{facet} = {v}", summ[summ[facet] == v].drop(columns=[facet]), ok[ok[facet] == v])
+        for v in sorted(summ[facet].unique())]
+    if facet is not None:
+        plt.close(fig)
+        fig, axes = plt.subplots(len(rows), 3, figsize=(12.5, 3.4 * len(rows)), squeeze=False)
+    else:
+        axes = [axes]
+    for row, (title, sub, runs) in zip(axes, rows):
+        _driver_lines(row, sub, runs)
+        if title:
+            row[1].set_title(title, fontsize=9)
+    axes[0][0].legend(fontsize=8)
+    fig.suptitle("mixed traffic, by driver: mean over seeds, band: 95 % confidence interval", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def _driver_lines(axes, summ: pd.DataFrame, ok: pd.DataFrame) -> None:
+    """The three panels of :func:`driver_figure` against the grid value, a line per control."""
+    xlabel, x, ticks = _x_axis(summ)
+    xlabel = {"demand.controlled_share": "share of controlled vehicles"}.get(xlabel, xlabel)
     for control, g in summ.groupby("control", sort=False):
         xs = x[g.index].to_numpy()
         order = xs.argsort()
@@ -868,11 +889,6 @@ def driver_figure(df: pd.DataFrame, summ: pd.DataFrame, path: Path) -> None:
         ax.grid(alpha=0.3)
         if ticks:
             ax.set_xticks(range(len(ticks)), ticks, rotation=20, fontsize=7)
-    axes[0].legend(fontsize=8)
-    fig.suptitle("mixed traffic, by driver: mean over seeds, band: 95 % confidence interval", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def markdown(note: str, tab: pd.DataFrame) -> str:
@@ -949,9 +965,43 @@ def figure(summ: pd.DataFrame, path: Path) -> None:
         fig.savefig(path, dpi=120)
         plt.close(fig)
         return
+    facet = _facet_key(summ)
+    rows = [(None, summ)] if facet is None else [
+        (f"{facet} = {v}", summ[summ[facet] == v].drop(columns=[facet])) for v in sorted(summ[facet].unique())]
+    if facet is not None:
+        plt.close(fig)
+        fig, axes = plt.subplots(len(rows), 3, figsize=(12.5, 3.4 * len(rows)), squeeze=False)
+    else:
+        axes = [axes]
+    for row, (title, sub) in zip(axes, rows):
+        few_any |= _lines(row, sub, panels)
+        if title:
+            row[1].set_title(title, fontsize=9)
+    axes[0][0].legend(fontsize=8)
+    fig.suptitle("mean over seeds, band: 95 % confidence interval"
+                 + (f" (not drawn where fewer than {MIN_SEEDS_FOR_CI} seeds: unreliable)" if few_any else ""),
+                 fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def _facet_key(summ: pd.DataFrame) -> str | None:
+    """Of a grid of two numeric keys, the one with fewer values: the figures draw a row of panels
+    per value of it, against the other (None for any other grid)."""
+    keys = grid_keys(summ)
+    if len(keys) != 2 or not all(pd.api.types.is_numeric_dtype(summ[k]) for k in keys):
+        return None
+    return min(keys, key=lambda k: (summ[k].nunique(), -keys.index(k)))
+
+
+def _lines(axes, summ: pd.DataFrame, panels) -> bool:
+    """Figure ``panels`` (key, label) on ``axes`` against the grid value, a line per control with
+    its 95 % band; returns whether some band was left out for want of seeds."""
     xlabel, x, ticks = _x_axis(summ)
-    if xlabel == "demand.rate_veh_h":
-        xlabel = "demand [veh/h per approach]"
+    xlabel = {"demand.rate_veh_h": "demand [veh/h per approach]",
+              "demand.controlled_share": "share of controlled vehicles"}.get(xlabel, xlabel)
+    few_any = False
     for control, g in summ.groupby("control", sort=False):
         xs = x[g.index]
         order = xs.argsort()
@@ -968,13 +1018,7 @@ def figure(summ: pd.DataFrame, path: Path) -> None:
             ax.grid(alpha=0.3)
             if ticks:
                 ax.set_xticks(range(len(ticks)), ticks, rotation=20, fontsize=7)
-    axes[0].legend(fontsize=8)
-    fig.suptitle("mean over seeds, band: 95 % confidence interval"
-                 + (f" (not drawn where fewer than {MIN_SEEDS_FOR_CI} seeds: unreliable)" if few_any else ""),
-                 fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    return few_any
 
 
 def seed_figure(df: pd.DataFrame, path: Path) -> None:
