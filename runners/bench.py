@@ -243,6 +243,8 @@ def scale_figure(rows: list[dict], path: Path) -> None:
         ax.annotate(f"{r['junctions']}", (r["at_once"], 1e6 * r["loop_s"] / r["vehicle_steps"]),
                     textcoords="offset points", xytext=(4, 4), fontsize=8)
     ax.set_xscale("log")
+    ax.set_xticks(x, [f"{v:.0f}" for v in x])  # (ticks at the grids: a log axis' minor labels overlap)
+    ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
     ax.set_xlabel("controlled vehicles at once (mean; label: junctions)")
     ax.set_ylabel("wall time per controlled vehicle-step [us]")
     ax.set_ylim(bottom=0)
