@@ -1,7 +1,9 @@
 """Human drivers at a controlled junction, and reserved crossings from rest.
 
-A human driver (``demand.controlled_share`` < 1) is sent to its stop line (``human``); standing
-there, its crossing is reserved between kinematic bounds (``reserved``,
+A human driver (``demand.controlled_share`` < 1) is sent to its stop line (``human``). Near it,
+with nothing ahead, it goes on without stopping where its crossing fits now (:func:`go_on`);
+otherwise, standing at the line or in the queue behind reserved drivers, its crossing is reserved
+between the bounds of SUMO's Krauss update (``reserved``,
 :meth:`~nrtraffic.planning.coordinator.Coordinator.reserve_crossing`); when the reservation starts
 SUMO's driver sets off (``crossing``), and the reservation shrinks as it goes to what its bounds
 still allow; past the merging zone it is spent (``crossed``). A controlled vehicle standing at the
@@ -15,7 +17,6 @@ import math
 from nrtraffic.junction.build import HUMAN_BODY
 from nrtraffic.lifecycle import HUMAN_DRIVERS, State, VehicleRecord
 from nrtraffic.planning.crossing import CrossingBounds, KraussBounds, human_crossing
-
 
 
 def to_stop_line(st, vid: str) -> None:
@@ -93,18 +94,13 @@ def go_on(st, vid: str) -> None:
     coord = st.junctions[rec.junction].coord
     if st.sumo.leader(vid, mv.s_exit - s_cg + st.params.length) is not None:
         return
-    v = float(st.snap.speed[st.snap.row[vid]])
     bounds = human_bounds(st, vid)
-    areas = {other: (mv.s_merge + lo - s_cg, mv.s_merge + hi - s_cg) for other, (lo, hi) in areas_of(st, rec).items()}
-    offsets, merge_w, exit_w, v_exit = human_crossing(bounds, areas, mv.s_merge - s_cg, mv.s_exit - s_cg, v)
+    offsets, merge_w, exit_w, v_exit = _windows(st, rec, s_cg, bounds, float(st.snap.speed[st.snap.row[vid]]))
     asg = coord.reserve_crossing(vid, rec.lane, body(rec), st.t, offsets, merge_w, exit_w, v_exit, None,
                                  driven_by_sumo=True, sumo_margin_s=st.sc.human.conflict_margin_s, now_only=True)
     if asg is None:
         return
-    rec.t_release = asg.t_release
-    rec.t_merge_planned, rec.v_merge_planned = asg.t_merge, asg.profile.v_m
-    rec.predecessor, rec.relation, rec.binding = asg.predecessor, asg.relation, asg.binding
-    st.reservations[vid] = (asg, bounds)
+    _note(st, vid, asg, bounds)
     rec.profile_kind = "human_go"
     st.sumo.cancel_stop(vid)
     st.life.move(vid, State.RESERVED)
@@ -167,19 +163,34 @@ def reserve(st, vid: str, bounds: CrossingBounds | KraussBounds):
     rec = st.records[vid]
     mv = st.paths[rec.movement]
     s_cg = st.cg_on_path(vid)
-    areas = {other: (mv.s_merge + lo - s_cg, mv.s_merge + hi - s_cg) for other, (lo, hi) in areas_of(st, rec).items()}
-    offsets, merge_w, exit_w, v_exit = human_crossing(bounds, areas, mv.s_merge - s_cg, mv.s_exit - s_cg)
+    offsets, merge_w, exit_w, v_exit = _windows(st, rec, s_cg, bounds)
     start = (max(mv.s_merge - s_cg, 0.0), bounds.a_lo, bounds.v_lo)  # its slowest start, for a follower's plan
     human = rec.driver == "human"
     asg = st.junctions[rec.junction].coord.reserve_crossing(
         vid, rec.lane, body(rec), st.t, offsets, merge_w, exit_w, v_exit, start, driven_by_sumo=human,
         sumo_margin_s=st.sc.human.conflict_margin_s if human else None)
+    _note(st, vid, asg, bounds)
+    return asg
+
+
+def _windows(st, rec: VehicleRecord, s_cg: float, bounds, v0: float = 0.0):
+    """:func:`~nrtraffic.planning.crossing.human_crossing` of a vehicle whose centre of gravity is
+    at ``s_cg`` [m] on its path, at speed ``v0`` [m/s]."""
+    mv = st.paths[rec.movement]
+    areas = {other: (mv.s_merge + lo - s_cg, mv.s_merge + hi - s_cg) for other, (lo, hi) in areas_of(st, rec).items()}
+    return human_crossing(bounds, areas, mv.s_merge - s_cg, mv.s_exit - s_cg, v0)
+
+
+def _note(st, vid: str, asg, bounds) -> None:
+    """A reserved crossing into the vehicle's record: its start, planned merging-zone entry
+    (latest) and predecessor; a human driver's reservation is refreshed as it crosses
+    (:func:`refresh`)."""
+    rec = st.records[vid]
     rec.t_release = asg.t_release
     rec.t_merge_planned, rec.v_merge_planned = asg.t_merge, asg.profile.v_m
     rec.predecessor, rec.relation, rec.binding = asg.predecessor, asg.relation, asg.binding
     if rec.driver == "human":
-        st.reservations[vid] = (asg, bounds)  # refreshed as it crosses (refresh)
-    return asg
+        st.reservations[vid] = (asg, bounds)
 
 
 def body(rec: VehicleRecord) -> str:
