@@ -260,7 +260,8 @@ class Engine:
         build.write_movements(self.workdir / "movements.json", st.paths, self.layout.junctions, self.relations,
                               st.conflict_areas)
         for j in self.layout.junctions.values():
-            j.coord = Coordinator(self.sc.coordinator, self.sc.planning, j.relations, areas=j.conflict_areas)
+            j.coord = Coordinator(self.sc.coordinator, self.sc.planning, j.relations, areas=j.conflict_areas,
+                                  human_margin_s=self.sc.human.conflict_margin_s)
 
     def _show_junctions(self) -> None:
         """sumo-gui opens on the controlled junctions: their merging zones with ``GUI_MARGIN_M``

@@ -193,6 +193,35 @@ def test_crossing_waits_for_a_reserved_vehicle_and_is_respected():
     assert asg_b2.predecessor == "h1" and asg_b2.binding == "conflict"  # (unhindered it would come at 24.5 s)
 
 
+def test_a_waiting_crossing_starts_as_soon_as_the_one_before_it_has_shrunk():
+    """A human driver's crossing reserved behind another's occupancy of their shared area starts
+    sooner once that occupancy has shrunk (as it does while the other drives across faster than
+    its slowest): at the closed-form first free time, never before ``t_min``; the margin between
+    two human drivers is their own, between a human driver and a controlled vehicle the
+    coordinator's."""
+    c = _coordinator()
+    c.human_margin_s = 0.2
+    assert c.margin_between(True, True) == 0.2
+    assert c.margin_between(True, False) == c.margin_between(False, True) == c.margin_between(False, False) == 1.0
+    bounds = CrossingBounds(1.3, 2.6, 10.0, 14.0, 0.1)
+    off_b, mw_b, ew_b, v_b = human_crossing(bounds, {"a": (5.0, 12.0)}, 0.0, 30.0)
+    first = c.reserve_crossing("h_b", "lane_b", "b", 10.0, off_b, mw_b, ew_b, v_b, driven_by_sumo=True)
+    off_a, mw_a, ew_a, v_a = human_crossing(bounds, {"b": (13.0, 19.0)}, 3.0, 33.0)
+    second = c.reserve_crossing("h_a", "lane_a", "a", 10.5, off_a, mw_a, ew_a, v_a, driven_by_sumo=True)
+    b_out = first.occupancy["a"][1]
+    assert second.t_release == pytest.approx(b_out + 0.2 - off_a["b"][0])  # (the human drivers' margin)
+    assert c.advance("h_a", 10.5) is None  # nothing has changed
+    # the first driver is on its way, faster than its slowest: its occupancy of the area ends 0.5 s sooner
+    first.occupancy["a"] = (first.occupancy["a"][0], b_out - 0.5)
+    moved = c.advance("h_a", 10.5)
+    assert moved.t_release == pytest.approx(b_out - 0.5 + 0.2 - off_a["b"][0]) and moved.t_release > 10.5
+    assert moved.t_exit - moved.t_release == pytest.approx(second.t_exit - second.t_release)
+    assert moved.occupancy["b"][0] - moved.t_release == pytest.approx(off_a["b"][0])
+    assert c.last_on_lane("lane_a") is moved
+    first.occupancy["a"] = (first.occupancy["a"][0], 0.0)  # spent: it may start at once, not before t_min
+    assert c.advance("h_a", 10.6).t_release == pytest.approx(10.6)
+
+
 def test_mixed_traffic_settings_are_checked():
     with pytest.raises(ScenarioError, match="controlled_share"):
         scenario.load(CROSS4, ["demand.controlled_share=1.5"])
@@ -219,11 +248,21 @@ def mixed_run(tmp_path_factory):
             reserved[vehicle_id] = asg
         return asg
 
+    advance = Coordinator.advance
+
+    def record_advance(self, vehicle_id, *args, **kwargs):  # (a start moved sooner: its new latest exit)
+        asg = advance(self, vehicle_id, *args, **kwargs)
+        if asg is not None:
+            reserved[vehicle_id] = asg
+        return asg
+
     Coordinator.reserve_crossing = record
+    Coordinator.advance = record_advance
     try:
         res = Engine(sc, out, seed=2, duration_s=300.0).run()
     finally:
         Coordinator.reserve_crossing = original
+        Coordinator.advance = advance
     return res, sc, reserved
 
 

@@ -19,6 +19,9 @@ from nrtraffic.lifecycle import HUMAN_DRIVERS, State, VehicleRecord
 from nrtraffic.planning.crossing import CrossingBounds, KraussBounds, human_crossing
 
 
+PLATOON_HEADWAY_S = 1.0  # a human driver starts this long after the human driver ahead of it on its lane [s]
+
+
 def to_stop_line(st, vid: str) -> None:
     """A human driver on its way to a junction: SUMO stops it at the stop line of its movement
     there, where its crossing will be reserved (:func:`step`)."""
@@ -49,6 +52,8 @@ def step(st, blocked_ahead) -> None:
                 go_on(st, vid)
             elif standing_in_queue(st, vid) and not blocked_ahead(vid):
                 reserve_human(st, vid, in_queue=True)
+        if life.state(vid) is State.RESERVED and st.t < rec.t_release - 1e-9:
+            advance(st, vid)
         if life.state(vid) is State.RESERVED and st.t >= rec.t_release - 1e-9:
             if rec.profile_kind == "human_queue":  # it stands short of its stop: the stop is dropped
                 st.sumo.cancel_stop(vid)
@@ -63,6 +68,27 @@ def step(st, blocked_ahead) -> None:
                 life.move(vid, State.CROSSED)
                 continue
             refresh(st, vid)
+
+
+def advance(st, vid: str) -> None:
+    """A reserved human driver waiting for its start sets off as soon as the conflict areas on its
+    path are clear: its start moves to the earliest time from now at which its occupancies overlap
+    no reservation (:meth:`~nrtraffic.planning.coordinator.Coordinator.advance`). The drivers
+    crossing ahead of it have their reservations shrunk to where they are (:func:`refresh`), so it
+    no longer waits for their slowest crossing. It still starts :data:`PLATOON_HEADWAY_S` after the
+    human driver ahead of it on its lane; behind a controlled vehicle it keeps its start."""
+    asg, bounds = st.reservations[vid]
+    t_min = st.t
+    if asg.follows is not None:
+        if st.records[asg.follows].driver != "human":
+            return
+        ahead = st.reservations.get(asg.follows)
+        if ahead is not None:
+            t_min = max(t_min, ahead[0].t_release + PLATOON_HEADWAY_S)
+    rec = st.records[vid]
+    new = st.junctions[rec.junction].coord.advance(vid, t_min)
+    if new is not None:
+        _note(st, vid, new, bounds)
 
 
 def standing_in_queue(st, vid: str) -> bool:
@@ -97,7 +123,7 @@ def go_on(st, vid: str) -> None:
     bounds = human_bounds(st, vid)
     offsets, merge_w, exit_w, v_exit = _windows(st, rec, s_cg, bounds, float(st.snap.speed[st.snap.row[vid]]))
     asg = coord.reserve_crossing(vid, rec.lane, body(rec), st.t, offsets, merge_w, exit_w, v_exit, None,
-                                 driven_by_sumo=True, sumo_margin_s=st.sc.human.conflict_margin_s, now_only=True)
+                                 driven_by_sumo=True, now_only=True)
     if asg is None:
         return
     _note(st, vid, asg, bounds)
@@ -168,7 +194,7 @@ def reserve(st, vid: str, bounds: CrossingBounds | KraussBounds):
     human = rec.driver == "human"
     asg = st.junctions[rec.junction].coord.reserve_crossing(
         vid, rec.lane, body(rec), st.t, offsets, merge_w, exit_w, v_exit, start, driven_by_sumo=human,
-        sumo_margin_s=st.sc.human.conflict_margin_s if human else None)
+        platoon_headway_s=PLATOON_HEADWAY_S)
     _note(st, vid, asg, bounds)
     return asg
 

@@ -168,6 +168,7 @@ class Assignment:
     occupancy: dict | None = None  # ... and its occupancy of each conflict area: other movement -> (in, out) [s]
     motion: Profile | None = None  # ... and its slowest start (standing_start), that a follower keeps behind
     driven_by_sumo: bool = False  # ... and SUMO's driver makes it (a human driver)
+    follows: str | None = None  # ... behind this vehicle on its lane
 
 
 @dataclass(frozen=True)
@@ -218,6 +219,9 @@ class Coordinator:
     _last_on_movement: dict[str, Assignment] = field(default_factory=dict)
     _passed: dict[str, int] = field(default_factory=dict)  # times a waiting vehicle has been passed ("batch")
     qp_wall_s: float = 0.0  # wall time spent in the rear-end QPs [s] (for the benchmarks)
+    # the margin between two human drivers' occupancies of a conflict area [s] (human.conflict_margin_s;
+    # None: the margin)
+    human_margin_s: float | None = None
 
     def schedule(self, vehicle_id: str, lane: str, t0: float, v0: float, D: float, movement: str = "",
                  zone_length_m: float = 0.0, v_limit: float = float("inf")) -> Assignment:
@@ -376,21 +380,22 @@ class Coordinator:
         return cost
 
     def _first_free(self, t_m: float, movement: str, v: float, extra: tuple = (),
-                    offsets: dict | None = None, sumo_margin_s: float | None = None) -> tuple[float, str | None]:
+                    offsets: dict | None = None, driven_by_sumo: bool = False,
+                    own: str | None = None) -> tuple[float, str | None]:
         """Earliest merge time from ``t_m`` at which this movement's occupancy of every conflict
         area on its path (entered at ``t + from / v``, left at ``t + to / v``, crossing at ``v``),
         widened by the margin, overlaps no reservation's occupancy of the same area; and the
         vehicle whose reservation pushed it last (None when ``t_m`` was free). ``extra``: tentative
         reservations ``(vehicle_id, movement, t_merge, v_m)``. ``offsets`` replaces the constant
         crossing speed: other movement -> (entry, exit) of the shared area [s after ``t``] (a
-        crossing the coordinator does not steer, :meth:`reserve_crossing`). ``sumo_margin_s``: the
-        margin to a reservation of SUMO's driver where this one is SUMO's driver too (both bounded
-        by the driver's own speed update; default the margin)."""
+        crossing the coordinator does not steer, :meth:`reserve_crossing`). ``driven_by_sumo``: the
+        request is a human driver's, whose margin to another's is :meth:`margin_between`. ``own``:
+        the requesting vehicle, whose own reservation is not in its way (:meth:`advance`)."""
         margin = self.settings.conflict_margin_s
         blocker = None
         reserved = [(r.vehicle_id, r.movement, r.t_merge, r.profile.v_m, r.occupancy,
-                     margin if sumo_margin_s is None or not r.driven_by_sumo else sumo_margin_s)
-                    for r in self._reserved]
+                     self.margin_between(driven_by_sumo, r.driven_by_sumo))
+                    for r in self._reserved if r.vehicle_id != own]
         reserved += [(*x, None, margin) for x in extra]
         if offsets is None:
             def mine_of(other):
@@ -424,6 +429,38 @@ class Coordinator:
                         moved = True
         return t_m, blocker
 
+    def margin_between(self, a_human: bool, b_human: bool) -> float:
+        """The margin [s] between two occupancies of a conflict area: ``human_margin_s`` between
+        two human drivers' reserved crossings, whose bounds already hold every motion their driver
+        model allows; ``coordinator.conflict_margin_s`` where one is a controlled vehicle's. (Half
+        of it between a human driver and a controlled vehicle let a driver, slowed on the move
+        behind a vehicle that had merged into its path ahead, leave the zone later than reserved.)"""
+        if a_human and b_human and self.human_margin_s is not None:
+            return self.human_margin_s
+        return self.settings.conflict_margin_s
+
+    def advance(self, vehicle_id: str, t_min: float) -> Assignment | None:
+        """Move the reserved crossing of ``vehicle_id`` (:meth:`reserve_crossing`), not started yet,
+        to the earliest start from ``t_min`` [s] at which its occupancies, the same after its start
+        as reserved, overlap no other reservation (they shrink as the vehicles cross and the others
+        are spent): the replacing assignment, or None where it cannot start sooner. ``t_min``
+        keeps it behind the vehicle ahead of it on its lane (the caller's rule)."""
+        a = next((x for x in self._reserved if x.vehicle_id == vehicle_id and x.occupancy is not None), None)
+        if a is None or math.isnan(a.t_release) or a.t_release <= t_min:
+            return None
+        rel = {o: (i - a.t_release, e - a.t_release) for o, (i, e) in a.occupancy.items()}
+        t, _ = self._first_free(t_min, a.movement, 0.0, offsets=rel, driven_by_sumo=a.driven_by_sumo,
+                                own=vehicle_id)
+        if t >= a.t_release - 1e-6:
+            return None
+        d = t - a.t_release
+        new = replace(a, t_merge=a.t_merge + d, t_exit=a.t_exit + d, t_release=t,
+                      occupancy={o: (t + i, t + e) for o, (i, e) in rel.items()})
+        self._reserved = [new if x is a else x for x in self._reserved]
+        if self._last_on_lane.get(a.lane) is a:
+            self._last_on_lane[a.lane] = new
+        return new
+
     def last_on_lane(self, lane: str) -> Assignment | None:
         """The last assignment on entry lane ``lane`` (the one a new request there follows)."""
         return self._last_on_lane.get(lane)
@@ -437,7 +474,7 @@ class Coordinator:
                          merge_window: tuple[float, float], exit_window: tuple[float, float],
                          v_exit_min: float, start: tuple[float, float, float] | None = None,
                          driven_by_sumo: bool = False, platoon_headway_s: float = 1.0,
-                         sumo_margin_s: float | None = None, now_only: bool = False) -> Assignment | None:
+                         now_only: bool = False) -> Assignment | None:
         """Reserve the crossing of a vehicle that starts from rest (a human driver standing at the
         stop line, ``demand.controlled_share``, or a controlled car queued behind one), first come
         first served: the
@@ -462,8 +499,8 @@ class Coordinator:
         ``driven_by_sumo`` (a human driver) behind another reservation ``driven_by_sumo``: both
         start from rest under SUMO's car-following model, which keeps the gap between them; it may
         start ``platoon_headway_s`` after the one ahead, whose start then holds it back no more
-        than its own bounds say (checked against SUMO's driver in tests/test_mixed.py); and
-        ``sumo_margin_s`` replaces the margin between the two occupancies of a conflict area.
+        than its own bounds say (checked against SUMO's driver in tests/test_mixed.py); and its
+        margin to the other reservations is :meth:`margin_between`.
 
         ``now_only``: a crossing that starts at ``t0`` or not at all (a driver on the move that goes
         on without stopping): None, and nothing reserved, where it would have to start later."""
@@ -484,8 +521,7 @@ class Coordinator:
             pred, relation = prev.vehicle_id, "same_lane"
             if t_same > t_start:
                 t_start, binding = t_same, "rear_end"
-        t, blocker = self._first_free(t_start, movement, 0.0, offsets=offsets,
-                                      sumo_margin_s=sumo_margin_s if driven_by_sumo else None)
+        t, blocker = self._first_free(t_start, movement, 0.0, offsets=offsets, driven_by_sumo=driven_by_sumo)
         if now_only and t > t0 + _EPS_S:
             return None
         if blocker is not None:
@@ -494,7 +530,7 @@ class Coordinator:
         motion = None if start is None else standing_start(t0, t, *start)
         a = Assignment(vehicle_id, lane, t0, t + merge_window[1], Crossing(max(v_exit_min, 1e-3)), pred, relation,
                        binding, movement, t + exit_window[1], t_release=t, occupancy=occ, motion=motion,
-                       driven_by_sumo=driven_by_sumo)
+                       driven_by_sumo=driven_by_sumo, follows=None if prev is None else prev.vehicle_id)
         self._last_on_lane[lane] = a
         self._reserved = [x for x in self._reserved if x.t_exit + self.settings.conflict_margin_s > t0] + [a]
         return a
