@@ -20,6 +20,7 @@ hence ``- h``; the driver sets off at most one step after its release, hence ``+
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -39,9 +40,10 @@ def travel_time(d: float, a: float, v_cap: float, v0: float = 0.0) -> float:
     return (v_cap - v0) / a + (d - d_acc) / v_cap
 
 
-def speed_from_rest(d: float, a: float, v_cap: float) -> float:
-    """Speed [m/s] after ``d`` [m] from rest at acceleration ``a`` up to ``v_cap``."""
-    return min(v_cap, math.sqrt(2.0 * a * max(d, 0.0)))
+def speed_from_rest(d: float, a: float, v_cap: float, v0: float = 0.0) -> float:
+    """Speed [m/s] after ``d`` [m] from speed ``v0`` (default rest) at acceleration ``a`` up to
+    ``v_cap`` (from above the cap: the cap)."""
+    return v_cap if v0 >= v_cap else min(v_cap, math.sqrt(v0 * v0 + 2.0 * a * max(d, 0.0)))
 
 
 @dataclass(frozen=True)
@@ -68,9 +70,7 @@ class CrossingBounds:
 
     def speed_at(self, d: float, v0: float = 0.0) -> float:
         """Its lowest speed [m/s] ``d`` [m] on from speed ``v0`` [m/s]."""
-        if v0 >= self.v_lo:
-            return self.v_lo
-        return min(self.v_lo, math.sqrt(v0 * v0 + 2.0 * self.a_lo * max(d, 0.0)))
+        return speed_from_rest(d, self.a_lo, self.v_lo, v0)
 
 
 def human_crossing(bounds, areas: dict, d_merge: float, d_exit: float, v0: float = 0.0):
@@ -84,6 +84,28 @@ def human_crossing(bounds, areas: dict, d_merge: float, d_exit: float, v0: float
     # (a vehicle standing in the merging zone has passed its entry: d_merge < 0, entered now)
     return (offsets, bounds.window(d_merge, d_merge, v0), bounds.window(d_exit, d_exit, v0),
             bounds.speed_at(d_exit, v0))
+
+
+@functools.lru_cache(maxsize=256)
+def _krauss_motion(accel: float, sigma: float, v_cap: float, step_s: float) -> tuple:
+    """Krauss's motion from rest, always dawdling by ``sigma`` (0: never) up to ``v_cap`` (see
+    :class:`KraussBounds`): speeds [m/s] and positions [m] at the end of each step while it picks
+    up speed, then its cruising speed. The same for every driver of a type and cap: computed once
+    (a driver's bounds are asked for at every step while it approaches, :func:`~nrtraffic.
+    junction.humans.go_on`)."""
+    v = x = 0.0
+    vs, xs = [0.0], [0.0]
+    while True:
+        u = min(v + accel * step_s, v_cap)
+        u = max(u - sigma * step_s * (u if u < accel else accel), 0.0)
+        if u <= v + 1e-12:  # cruising: it gains nothing more
+            out = np.array(vs), np.array(xs), max(v, 1e-9)
+            for arr in out[:2]:
+                arr.flags.writeable = False  # (shared by every caller)
+            return out
+        v, x = u, x + u * step_s
+        vs.append(v)
+        xs.append(x)
 
 
 class KraussBounds:
@@ -110,35 +132,26 @@ class KraussBounds:
         if not (accel > 0 and 0 <= sigma < 1 and 0 < v_lo <= v_hi and step_s > 0):
             raise ValueError(f"Krauss bounds need accel > 0, 0 <= sigma < 1, 0 < v_lo <= v_hi, step > 0: "
                              f"{accel}, {sigma}, {v_lo}, {v_hi}, {step_s}")
-        self.accel, self.sigma, self.step_s = accel, sigma, step_s
-        self._lo = self._motion(sigma, v_lo)
-        self._hi = self._motion(0.0, v_hi)
+        self.step_s = step_s
+        self._lo = _krauss_motion(accel, sigma, v_lo, step_s)
+        self._hi = _krauss_motion(accel, 0.0, v_hi, step_s)
         self.a_lo, self.a_hi = (1.0 - sigma) * accel, accel
         self.v_lo, self.v_hi = self._lo[2], v_hi  # (the latest cruises a dawdle below its cap)
 
-    def _motion(self, sigma: float, v_cap: float) -> tuple:
-        """Speeds [m/s] and positions [m] at the end of each step from rest, while it picks up
-        speed; then its cruising speed."""
-        a, h = self.accel, self.step_s
-        v = x = 0.0
-        vs, xs = [0.0], [0.0]
-        while True:
-            u = min(v + a * h, v_cap)
-            u = max(u - sigma * h * (u if u < a else a), 0.0)
-            if u <= v + 1e-12:  # cruising: it gains nothing more
-                return np.array(vs), np.array(xs), max(v, 1e-9)
-            v, x = u, x + u * h
-            vs.append(v)
-            xs.append(x)
+    @staticmethod
+    def _step(vs: np.ndarray, v0: float, slowest: bool) -> int:
+        """The step of a motion to continue from a state of speed ``v0``: the last no faster
+        (``slowest``: for the latest) or the first no slower (for the earliest); len(vs) where
+        none is."""
+        if slowest:
+            return int(np.searchsorted(vs, v0 + 1e-9, side="right")) - 1
+        return int(np.searchsorted(vs, v0 - 1e-9, side="left"))
 
     def _time(self, motion: tuple, d: float, v0: float, slowest: bool) -> float:
         """Steps [s] from a state of speed ``v0`` to cover ``d`` [m] on ``motion``."""
         vs, xs, v_cruise = motion
         h = self.step_s
-        if slowest:  # the last step no faster than v0
-            j = int(np.searchsorted(vs, v0 + 1e-9, side="right")) - 1
-        else:  # the first step no slower than v0
-            j = int(np.searchsorted(vs, v0 - 1e-9, side="left"))
+        j = self._step(vs, v0, slowest)
         if j >= len(vs):  # faster than the motion ever gets: (earliest) at its own speed
             return d / max(v0, v_cruise)
         target = xs[j] + d
@@ -150,7 +163,7 @@ class KraussBounds:
     def speed_at(self, d: float, v0: float = 0.0) -> float:
         """Its lowest speed [m/s] ``d`` [m] on from speed ``v0`` [m/s]."""
         vs, xs, v_cruise = self._lo
-        j = int(np.searchsorted(vs, v0 + 1e-9, side="right")) - 1
+        j = self._step(vs, v0, True)
         k = int(np.searchsorted(xs, xs[j] + d - 1e-9, side="left"))
         return float(vs[k]) if k < len(vs) else v_cruise
 
