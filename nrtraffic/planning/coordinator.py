@@ -506,19 +506,10 @@ class Coordinator:
         on without stopping): None, and nothing reserved, where it would have to start later."""
         t_start, binding, pred, relation = t0, "earliest", None, "none"
         prev = self._last_on_lane.get(lane)
-        if prev is not None and driven_by_sumo and prev.driven_by_sumo:  # a platoon of SUMO's drivers
+        if prev is not None:
             pred, relation = prev.vehicle_id, "same_lane"
-            if prev.t_release + platoon_headway_s > t_start:
-                t_start, binding = prev.t_release + platoon_headway_s, "rear_end"
-        elif prev is not None:
-            spacing_t = self.settings.rear_end_spacing_m / max(v_exit_min, self.bounds.v_min_mps)
-            t_same = max(prev.t_merge + self.settings.min_merge_headway_s - merge_window[0],
-                         prev.t_exit + spacing_t - exit_window[0])
-            if not math.isnan(prev.t_release):  # it also starts from rest: not before it sets off
-                t_same = max(t_same, prev.t_release + self.settings.min_merge_headway_s)
-            if start is not None:  # and not before its start from rest would run into the plan ahead
-                t_same = max(t_same, self._start_behind(prev, t0, *start))
-            pred, relation = prev.vehicle_id, "same_lane"
+            t_same = self._lane_bound(prev, t0, merge_window, exit_window, v_exit_min, start, driven_by_sumo,
+                                      platoon_headway_s)
             if t_same > t_start:
                 t_start, binding = t_same, "rear_end"
         t, blocker = self._first_free(t_start, movement, 0.0, offsets=offsets, driven_by_sumo=driven_by_sumo)
@@ -534,6 +525,22 @@ class Coordinator:
         self._last_on_lane[lane] = a
         self._reserved = [x for x in self._reserved if x.t_exit + self.settings.conflict_margin_s > t0] + [a]
         return a
+
+    def _lane_bound(self, prev: Assignment, t0: float, merge_window: tuple[float, float],
+                    exit_window: tuple[float, float], v_exit_min: float, start, driven_by_sumo: bool,
+                    platoon_headway_s: float) -> float:
+        """The earliest start [s] of a crossing from rest behind ``prev``, the vehicle ahead of it
+        on its lane (the rule of :meth:`reserve_crossing`, whose arguments these are)."""
+        if driven_by_sumo and prev.driven_by_sumo:  # a platoon of SUMO's drivers
+            return prev.t_release + platoon_headway_s
+        spacing_t = self.settings.rear_end_spacing_m / max(v_exit_min, self.bounds.v_min_mps)
+        t_same = max(prev.t_merge + self.settings.min_merge_headway_s - merge_window[0],
+                     prev.t_exit + spacing_t - exit_window[0])
+        if not math.isnan(prev.t_release):  # it also starts from rest: not before it sets off
+            t_same = max(t_same, prev.t_release + self.settings.min_merge_headway_s)
+        if start is not None:  # and not before its start from rest would run into the plan ahead
+            t_same = max(t_same, self._start_behind(prev, t0, *start))
+        return t_same
 
     def _start_behind(self, prev: Assignment, t0: float, D: float, a: float, v_cap: float) -> float:
         """The earliest start [s] of a car standing ``D`` [m] before its merging zone, from rest at
