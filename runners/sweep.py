@@ -817,11 +817,11 @@ def driver_figure(df: pd.DataFrame, summ: pd.DataFrame, path: Path) -> None:
     per run, against the grid value per control (means over seeds; band: 95 % interval)."""
     from nrtraffic.plots import plt
 
-    fig, axes = plt.subplots(1, 3, figsize=(12.5, 3.8))
     ok = df[df["status"] == "ok"].copy()
     ok["pairs"] = sum(pd.to_numeric(ok.get(f"collisions_{k}"), errors="coerce").fillna(0)
                       for k in ("automated", "mixed", "human"))
     if _one_point(summ):
+        fig, axes = plt.subplots(1, 3, figsize=(12.5, 3.8))
         for ax, k, label in zip(axes[:2], ("mean_delay_automated_s", "mean_delay_human_s"),
                                 ("mean delay, automated [s]", "mean delay, human drivers [s]")):
             _bars(ax, summ, k, label)
@@ -842,24 +842,8 @@ def driver_figure(df: pd.DataFrame, summ: pd.DataFrame, path: Path) -> None:
         fig.savefig(path, dpi=120)
         plt.close(fig)
         return
-    facet = _facet_key(summ)
-    rows = [(None, summ, ok)] if facet is None else [
-        (f"{facet} = {v}", summ[summ[facet] == v].drop(columns=[facet]), ok[ok[facet] == v])
-        for v in sorted(summ[facet].unique())]
-    if facet is not None:
-        plt.close(fig)
-        fig, axes = plt.subplots(len(rows), 3, figsize=(12.5, 3.4 * len(rows)), squeeze=False)
-    else:
-        axes = [axes]
-    for row, (title, sub, runs) in zip(axes, rows):
-        _driver_lines(row, sub, runs)
-        if title:
-            row[1].set_title(title, fontsize=9)
-    axes[0][0].legend(fontsize=8)
-    fig.suptitle("mixed traffic, by driver: mean over seeds, band: 95 % confidence interval", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _line_rows(summ, ok, _driver_lines, path,
+               "mixed traffic, by driver: mean over seeds, band: 95 % confidence interval")
 
 
 def _driver_lines(axes, summ: pd.DataFrame, ok: pd.DataFrame) -> None:
@@ -952,9 +936,9 @@ def figure(summ: pd.DataFrame, path: Path) -> None:
 
     panels = (("throughput_veh_h", "throughput [veh/h]"), ("mean_delay_s", "mean delay [s]"),
               ("mean_fuel_ml", "fuel [mL/veh]"))
-    fig, axes = plt.subplots(1, 3, figsize=(12.5, 3.8))
-    few_any = False
     if _one_point(summ):
+        fig, axes = plt.subplots(1, 3, figsize=(12.5, 3.8))
+        few_any = False
         for ax, (k, label) in zip(axes, panels):
             few_any |= _bars(ax, summ, k, label)
         point = _point_text(summ)
@@ -965,22 +949,32 @@ def figure(summ: pd.DataFrame, path: Path) -> None:
         fig.savefig(path, dpi=120)
         plt.close(fig)
         return
+    _line_rows(summ, None, lambda axes, sub, _: _lines(axes, sub, panels), path, "mean over seeds, band: 95 % confidence interval",
+                         f" (not drawn where fewer than {MIN_SEEDS_FOR_CI} seeds: unreliable)")
+
+
+def _line_rows(summ: pd.DataFrame, runs: pd.DataFrame | None, draw, path: Path, title: str,
+               few_note: str = "") -> None:
+    """A figure of three panels against the grid value: one row, or, for a grid of two numeric
+    keys, a row per value of the one with fewer (:func:`_facet_key`). ``draw(axes, summ, runs)``
+    draws a row from its part of the summary and of the runs table (``runs``: None, or the
+    successful runs); where it returns True (a band left out for want of seeds) the title says
+    ``few_note``."""
+    from nrtraffic.plots import plt
+
     facet = _facet_key(summ)
-    rows = [(None, summ)] if facet is None else [
-        (f"{facet} = {v}", summ[summ[facet] == v].drop(columns=[facet])) for v in sorted(summ[facet].unique())]
-    if facet is not None:
-        plt.close(fig)
-        fig, axes = plt.subplots(len(rows), 3, figsize=(12.5, 3.4 * len(rows)), squeeze=False)
-    else:
-        axes = [axes]
-    for row, (title, sub) in zip(axes, rows):
-        few_any |= _lines(row, sub, panels)
-        if title:
-            row[1].set_title(title, fontsize=9)
+    rows = [(None, summ, runs)] if facet is None else [
+        (f"{facet} = {v}", summ[summ[facet] == v].drop(columns=[facet]),
+         None if runs is None else runs[runs[facet] == v]) for v in sorted(summ[facet].unique())]
+    fig, axes = plt.subplots(len(rows), 3, figsize=(12.5, 3.8 if facet is None else 3.4 * len(rows)),
+                             squeeze=False)
+    few = False
+    for row, (label, sub, part) in zip(axes, rows):
+        few |= bool(draw(row, sub, part))
+        if label:
+            row[1].set_title(label, fontsize=9)
     axes[0][0].legend(fontsize=8)
-    fig.suptitle("mean over seeds, band: 95 % confidence interval"
-                 + (f" (not drawn where fewer than {MIN_SEEDS_FOR_CI} seeds: unreliable)" if few_any else ""),
-                 fontsize=9)
+    fig.suptitle(title + (few_note if few else ""), fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
