@@ -389,17 +389,13 @@ def _report(result: RunResult, out: Path) -> None:
         s = result.summary
         s["status"] = "failed"
         s["error"] = _named(f"the run finished, but its report could not be written: {why}")
+        raise RunFailed(s["error"], result) from exc
+    finally:  # the manifest, then the summary with the run's status: the last file written
         try:
             update_manifest(out)
         except OSError:
             pass  # (a full disk: the manifest keeps what it had; the summary holds its space)
-        write_summary(out / "summary.json", s)
-        raise RunFailed(s["error"], result) from exc
-    try:
-        update_manifest(out)
-    except OSError:
-        pass  # (a full disk: the manifest keeps what it had)
-    write_summary(out / "summary.json", result.summary)
+        write_summary(out / "summary.json", result.summary)
 
 
 def _named(error: str) -> str:
