@@ -177,7 +177,7 @@ def test_compare_puts_each_runs_own_figures_side_by_side(cross4_pair, capsys):
         veh = pd.read_csv(d / "vehicles.csv")
         w = veh[(veh["t_arrive_s"] >= s["measure_from_s"]) & (veh["t_arrive_s"] <= s["measure_to_s"])
                 & veh["t_exit_s"].notna()]
-        q = pd.DataFrame([(iv.get("id").split("|")[1], float(iv.get("begin")), float(iv.get("end")),
+        q = pd.DataFrame([(iv.get("id").split(":", 1)[1].rsplit("_", 1)[0], float(iv.get("begin")), float(iv.get("end")),
                            float(iv.get("maxJamLengthInVehicles")))
                           for iv in ET.parse(d / "queues.xml").getroot().iter("interval")],
                          columns=["approach", "begin", "end", "max"])

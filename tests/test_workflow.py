@@ -199,7 +199,7 @@ def test_queues_come_from_sumos_detectors_and_match_the_halting_vehicles(tmp_pat
     sc = scenario.load(CROSS4, ["demand.rate_veh_h=600.0", "outputs.sumo_fcd=true", "outputs.warmup_s=0.0"])
     out = tmp_path / "tl"
     run_baseline(sc, "traffic_light", out, duration_s=200.0)
-    e2 = pd.DataFrame([{"lane": iv.get("id").split("|")[2], "begin": float(iv.get("begin")),
+    e2 = pd.DataFrame([{"lane": iv.get("id").split(":", 1)[1], "begin": float(iv.get("begin")),
                         "end": float(iv.get("end")), "max_veh": float(iv.get("maxJamLengthInVehicles"))}
                        for iv in ET.parse(out / "queues.xml").getroot().iter("interval")])
     fcd = [(float(ts.get("time")), v.get("lane"), float(v.get("speed")))
