@@ -432,9 +432,8 @@ class Coordinator:
     def margin_between(self, a_human: bool, b_human: bool) -> float:
         """The margin [s] between two occupancies of a conflict area: ``human_margin_s`` between
         two human drivers' reserved crossings, whose bounds already hold every motion their driver
-        model allows; ``coordinator.conflict_margin_s`` where one is a controlled vehicle's. (Half
-        of it between a human driver and a controlled vehicle let a driver, slowed on the move
-        behind a vehicle that had merged into its path ahead, leave the zone later than reserved.)"""
+        model allows; ``coordinator.conflict_margin_s`` where one is a controlled vehicle's (it is
+        bounded by no driver model)."""
         if a_human and b_human and self.human_margin_s is not None:
             return self.human_margin_s
         return self.settings.conflict_margin_s
@@ -487,20 +486,9 @@ class Coordinator:
         from its latest entry and exit); ``start``: ``(D, a, v_cap)``, its distance to the
         merging zone [m] and its slowest start from rest, which a vehicle planned behind it on its
         lane keeps behind (:func:`~nrtraffic.planning.profiles.standing_start`; without it, the
-        barrier alone keeps the gap). Returns the assignment, ``t_release`` the start.
-
-        Behind the last vehicle ``j`` of its lane, as :meth:`schedule` spaces a lane: its earliest
-        entry no sooner than ``h_min`` after j's (latest) entry, and its earliest exit no sooner
-        than ``delta / max(v_exit_min, v_min)`` after j's (latest) exit, so that it does not start
-        before the vehicle ahead of it and the vehicle ahead does not hold it back; when j starts
-        from rest too (a standing queue), no sooner than ``h_min`` after j's start (a car far back
-        in the queue would otherwise set off before the one ahead of it and run into it).
-
-        ``driven_by_sumo`` (a human driver) behind another reservation ``driven_by_sumo``: both
-        start from rest under SUMO's car-following model, which keeps the gap between them; it may
-        start ``platoon_headway_s`` after the one ahead, whose start then holds it back no more
-        than its own bounds say (checked against SUMO's driver in tests/test_mixed.py); and its
-        margin to the other reservations is :meth:`margin_between`.
+        barrier alone keeps the gap). Returns the assignment, ``t_release`` the start. Behind the
+        last vehicle of its lane: :meth:`_lane_bound`. ``driven_by_sumo``: a human driver, whose
+        margin to the others is :meth:`margin_between`.
 
         ``now_only``: a crossing that starts at ``t0`` or not at all (a driver on the move that goes
         on without stopping): None, and nothing reserved, where it would have to start later."""
@@ -529,8 +517,14 @@ class Coordinator:
     def _lane_bound(self, prev: Assignment, t0: float, merge_window: tuple[float, float],
                     exit_window: tuple[float, float], v_exit_min: float, start, driven_by_sumo: bool,
                     platoon_headway_s: float) -> float:
-        """The earliest start [s] of a crossing from rest behind ``prev``, the vehicle ahead of it
-        on its lane (the rule of :meth:`reserve_crossing`, whose arguments these are)."""
+        """The earliest start [s] of a crossing from rest (:meth:`reserve_crossing`, whose arguments
+        these are) behind ``prev``, the last vehicle of its lane. Two human drivers
+        (``driven_by_sumo``): ``platoon_headway_s`` after its start; SUMO's car following keeps the
+        gap, and the one ahead holds it back no more than its bounds say (tests/test_mixed.py).
+        Otherwise as :meth:`schedule` spaces a lane: its earliest entry ``h_min`` after prev's
+        (latest) entry, its earliest exit ``delta / max(v_exit_min, v_min)`` after prev's (latest)
+        exit; after prev's start where that starts from rest too (a standing queue), and not before
+        its own start would run into prev's plan (:func:`start_behind`)."""
         if driven_by_sumo and prev.driven_by_sumo:  # a platoon of SUMO's drivers
             return prev.t_release + platoon_headway_s
         spacing_t = self.settings.rear_end_spacing_m / max(v_exit_min, self.bounds.v_min_mps)
@@ -539,29 +533,8 @@ class Coordinator:
         if not math.isnan(prev.t_release):  # it also starts from rest: not before it sets off
             t_same = max(t_same, prev.t_release + self.settings.min_merge_headway_s)
         if start is not None:  # and not before its start from rest would run into the plan ahead
-            t_same = max(t_same, self._start_behind(prev, t0, *start))
+            t_same = max(t_same, start_behind(prev, t0, *start, self.settings.rear_end_spacing_m))
         return t_same
-
-    def _start_behind(self, prev: Assignment, t0: float, D: float, a: float, v_cap: float) -> float:
-        """The earliest start [s] of a car standing ``D`` [m] before its merging zone, from rest at
-        ``a`` [m/s^2] up to ``v_cap`` [m/s], that keeps behind the plan of the car ahead of it on
-        its lane (its profile, or its own slowest start from rest): a start at ``t`` covers
-        ``f(tau - t)`` by ``tau``, which must stay within the leader's position less the gap,
-        ``x(tau)``; with ``T(x)`` the time to cover ``x`` from rest (:func:`~nrtraffic.planning.
-        crossing.travel_time`; 0 for ``x <= 0``), ``t >= max_tau (tau - T(x(tau)))``. The gap is
-        ``delta``, or the spacing it stands at less half a metre where that is less (a standing
-        queue). ``t0`` where the car ahead has no plan (a human's crossing: the barrier keeps the
-        gap)."""
-        lead = prev.motion if prev.motion is not None else prev.profile
-        if not isinstance(lead, Profile):
-            return t0
-        t_end = max(prev.t_exit, lead.t0 + lead.T) + travel_time(D, a, v_cap)
-        grid = np.linspace(t0, t_end, max(2, int(math.ceil((t_end - t0) / 0.1)) + 1))
-        spacing = D - lead.D + lead.evaluate(grid)[0]  # centre to centre if this car stood still [m]
-        gap = min(self.settings.rear_end_spacing_m, max(float(spacing.min()) - 0.5, 0.5))
-        x = spacing - gap  # what it may have covered by each instant [m]
-        T = np.array([travel_time(d, a, v_cap) for d in x.tolist()])
-        return max(t0, float(np.max(grid - T)))
 
     def _keep_behind(self, prof: Profile, prev: Assignment, t0: float, v0: float, D: float,
                      t_m: float, strict: bool = False) -> tuple[Profile, float]:
@@ -641,3 +614,25 @@ class Coordinator:
         except InfeasibleProfile as exc:
             raise ScheduleInfeasible(f"vehicle {vehicle_id}: {exc}") from None
         return prof
+
+
+def start_behind(prev: Assignment, t0: float, D: float, a: float, v_cap: float, delta: float) -> float:
+    """The earliest start [s] of a car standing ``D`` [m] before its merging zone, from rest at
+    ``a`` [m/s^2] up to ``v_cap`` [m/s], that keeps behind the plan of the car ahead of it on
+    its lane (its profile, or its own slowest start from rest): a start at ``t`` covers
+    ``f(tau - t)`` by ``tau``, which must stay within the leader's position less the gap,
+    ``x(tau)``; with ``T(x)`` the time to cover ``x`` from rest (:func:`~nrtraffic.planning.
+    crossing.travel_time`; 0 for ``x <= 0``), ``t >= max_tau (tau - T(x(tau)))``. The gap is
+    ``delta`` [m], or the spacing it stands at less half a metre where that is less (a standing
+    queue). ``t0`` where the car ahead has no plan (a human's crossing: the barrier keeps the
+    gap)."""
+    lead = prev.motion if prev.motion is not None else prev.profile
+    if not isinstance(lead, Profile):
+        return t0
+    t_end = max(prev.t_exit, lead.t0 + lead.T) + travel_time(D, a, v_cap)
+    grid = np.linspace(t0, t_end, max(2, int(math.ceil((t_end - t0) / 0.1)) + 1))
+    spacing = D - lead.D + lead.evaluate(grid)[0]  # centre to centre if this car stood still [m]
+    gap = min(delta, max(float(spacing.min()) - 0.5, 0.5))
+    x = spacing - gap  # what it may have covered by each instant [m]
+    T = np.array([travel_time(d, a, v_cap) for d in x.tolist()])
+    return max(t0, float(np.max(grid - T)))
