@@ -214,15 +214,19 @@ def begin_manifest(out: Path, planned=()) -> None:
     _write_json(out / MANIFEST, {"preexisting": pre, "created": sorted(set(planned) - set(pre) - {MANIFEST})})
 
 
-def update_manifest(out: Path) -> None:
+def update_manifest(out: Path, final: bool = False) -> None:
     """Record in ``out``'s manifest every file and folder the run has created so far (all that is
-    there now and was not before it); called with every checkpoint and at the end."""
+    there now and was not before it); called with every checkpoint, keeping the names still to be
+    written (:func:`begin_manifest`). ``final`` (the run's last word): only what it did write, so
+    that a file of the user's that later takes the name of one it did not write (``fcd.xml``, a
+    figure) is never taken for the run's."""
     out = Path(out)
     m = read_manifest(out)
     if m is None:
         return
     pre = set(m.get("preexisting", []))
-    m["created"] = sorted((_tree(out) - pre - {MANIFEST}) | set(m.get("created", [])))
+    written = _tree(out) - pre - {MANIFEST}
+    m["created"] = sorted(written if final else written | set(m.get("created", [])))
     _write_json(out / MANIFEST, m)
 
 
@@ -327,7 +331,7 @@ def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: 
                    "seed": resolved.general.seed, "status": "failed", "sim_time_s": sim_time_s,
                    "error": _named(error), **(extra_summary or {})}
         write_summary(out / "summary.json", summary)
-        update_manifest(out)
+        update_manifest(out, final=True)
         return RunFailed(summary["error"], RunResult(summary, pd.DataFrame(), out))
 
     if engine_options.get("control", True):
@@ -351,7 +355,7 @@ def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: 
         exc.result.summary.update(extra_summary or {})
         exc.result.summary["error"] = _named(exc.result.summary.get("error") or str(exc))
         try:
-            _write(exc.result, out)
+            _write(exc.result, out, final=True)
         except OSError as werr:
             raise RunFailed(f"{exc}; and the figures could not be written into {out}: {werr}", exc.result) from exc
         raise
@@ -365,7 +369,7 @@ def execute(sc: scenario_mod.Scenario, out: Path, seed: int | None, duration_s: 
     if report:  # (its status waits for the report: a run whose report failed never says ok)
         result.summary["status"] = "running"
     try:
-        _write(result, out)
+        _write(result, out, final=not report)
     except OSError as exc:
         raise RunFailed(f"the run finished, but its figures could not be written into {out}: {exc}", result) from exc
     if report:
@@ -392,7 +396,7 @@ def _report(result: RunResult, out: Path) -> None:
         raise RunFailed(s["error"], result) from exc
     finally:  # the manifest, then the summary with the run's status: the last file written
         try:
-            update_manifest(out)
+            update_manifest(out, final=True)
         except OSError:
             pass  # (a full disk: the manifest keeps what it had; the summary holds its space)
         write_summary(out / "summary.json", result.summary)
@@ -405,11 +409,11 @@ def _named(error: str) -> str:
     return error if sig is None or sig in error else f"stopped by {sig}: {error}"
 
 
-def _write(result: RunResult, out: Path) -> None:
+def _write(result: RunResult, out: Path, final: bool = False) -> None:
     """vehicles.csv, movements.csv, then summary.json (each under a temporary name, renamed when
-    whole). Where a table cannot be written (a full disk), summary.json still is, saying
-    ``"status": "failed"`` and why (in the space the earlier summary holds), and the OSError goes
-    on."""
+    whole), and the manifest (``final``: the run writes nothing more, :func:`update_manifest`). Where
+    a table cannot be written (a full disk), summary.json still is, saying ``"status": "failed"``
+    and why (in the space the earlier summary holds), and the OSError goes on."""
     try:
         write_vehicles(out / "vehicles.csv", result.vehicles)
         write_movements(out / "movements.csv", result)
@@ -423,6 +427,6 @@ def _write(result: RunResult, out: Path) -> None:
         raise
     write_summary(out / "summary.json", result.summary)
     try:
-        update_manifest(out)
+        update_manifest(out, final=final)
     except OSError:
         pass  # (a full disk: the manifest keeps what it had)

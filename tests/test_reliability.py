@@ -877,6 +877,28 @@ def test_force_does_not_write_over_files_no_earlier_run_created(tmp_path, capsys
             assert (o / "vehicles.csv").read_text() == "mine\n"
 
 
+def test_force_keeps_a_users_file_named_like_one_the_run_did_not_write(tmp_path, capsys):
+    """A finished run without fcd.xml or arterial.png lists only what it wrote: a file of the user's
+    put into its folder later under one of those names is not taken for the run's. ``--force``
+    refuses to write over it (exit 2) and keeps it; without it, the run is replaced."""
+    base = ["run", str(CROSS4), "--duration", "5", "--set", "outputs.warmup_s=0", "--no-progress"]
+    out = tmp_path / "o"
+    assert main(base + ["--out", str(out)]) == 0
+    created = set(json.loads((out / "manifest.json").read_text())["created"])
+    assert {"summary.json", "vehicles.csv", "sumo"} <= created
+    assert not any((out / n).exists() is False for n in created)  # every name listed was written
+    assert "fcd.xml" not in created and "arterial.png" not in created
+    (out / "fcd.xml").write_text("mine")
+    capsys.readouterr()
+    assert main(base + ["--out", str(out), "--force"]) == 2
+    assert "fcd.xml" in capsys.readouterr().err
+    assert (out / "fcd.xml").read_text() == "mine"
+    (out / "fcd.xml").rename(tmp_path / "fcd.xml")
+    (out / "arterial.png").write_text("mine too")
+    assert main(base + ["--out", str(out), "--force"]) == 2
+    assert (out / "arterial.png").read_text() == "mine too"
+
+
 def test_a_run_killed_outright_can_be_replaced_with_force(tmp_path):
     """A run killed with SIGKILL as soon as its summary says "running" (no checkpoint, no clean-up):
     its manifest already lists the files it writes, so ``--force`` replaces it; a file of the
