@@ -7,6 +7,7 @@ Layout of the output folder ``DIR``::
     sweep_summary.csv                      per grid point and control: mean, sd, 95 % CI of each figure
     sweep.md                               the headline figures as a markdown table
     sweep.png, sweep_seeds.png             figures against the grid value, and per-seed distributions
+    manifest.json                          what the sweep wrote at the top of DIR (a resume writes only over those)
 
 A run directory is written under a temporary name and renamed when the run has finished, so a run
 directory under its final name is always complete; re-running the same command skips those. A
@@ -468,6 +469,7 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
                     cluster.close()
     df = collect(jobs, errors)
     write_tables(df, out, figures)
+    record_tables(out, written=True)
     return df
 
 
@@ -1039,19 +1041,51 @@ def seed_figure(df: pd.DataFrame, path: Path) -> None:
     plt.close(fig)
 
 
+# what a sweep keeps beside its tables in ``--out``: its runs, its batch jobs' scripts, its manifest
+SWEEP_FOLDERS = ("runs", "jobs")
+
+
 def check_out(out: Path) -> None:
     """A sweep's ``--out`` (not created here): not a file, nothing in its path that SUMO misreads,
-    and either empty or an earlier sweep's (it has ``runs/``): a folder of other files is refused, so
-    that a sweep's tables never replace a user's files of the same name."""
+    and either empty or an earlier sweep's: beside ``runs/`` and ``jobs/`` it may hold only what a
+    sweep recorded in its manifest as written (:func:`record_tables`), so that a sweep's tables and
+    report never replace a user's files of the same name."""
     from runners.api import OutputError, usable_path
+    from runners.single import MANIFEST, read_manifest
 
     try:
         usable_path(out)
     except OutputError as exc:
         raise SweepError(str(exc)) from None
-    if out.is_dir() and not (out / "runs").is_dir() and any(p.name != "jobs" for p in out.iterdir()):
+    if not out.is_dir():
+        return
+    m = read_manifest(out)
+    own = set(m["created"]) | {MANIFEST} if m is not None else set()
+    foreign = sorted(p.name for p in out.iterdir() if p.name not in own and p.name not in SWEEP_FOLDERS)
+    if foreign and not (out / "runs").is_dir():
         raise SweepError(f"--out {out} holds files and no earlier sweep (no runs/ folder): choose an empty folder, "
                          "or the folder of the sweep to resume")
+    if foreign:
+        shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
+        raise SweepError(f"--out {out} holds {shown}, which no sweep there recorded writing (files of your own, or "
+                         f"the tables of a sweep of an earlier version, which kept no {MANIFEST}): a sweep would "
+                         "write its tables over them; move them out of the folder and run again to resume its runs/, "
+                         "or choose another folder")
+
+
+def record_tables(out: Path, written: bool) -> None:
+    """The sweep's manifest in ``out`` (``manifest.json``, as a run's: what was there before, what it
+    created): begun before the tables are written (``written`` False; a new one lists the folder's
+    top level as there before), then, once written, listing every top-level name it created.
+    :func:`check_out` lets a resume write only over those."""
+    from runners.single import MANIFEST, _write_json, read_manifest
+
+    m = read_manifest(out) or {"preexisting": sorted(p.name for p in out.iterdir() if p.name != MANIFEST),
+                               "created": []}
+    if written:
+        now = {p.name for p in out.iterdir()} - {MANIFEST, MANIFEST + ".tmp"}
+        m["created"] = sorted((now - set(m["preexisting"])) | set(m["created"]))
+    _write_json(out / MANIFEST, m)
 
 
 def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]]], controls: list[str], out: Path,
@@ -1079,11 +1113,12 @@ def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]
         raise SweepError(str(exc)) from None
     check_resume(jobs, force=force)
     remove_stale(out)
+    record_tables(Path(out), written=False)  # (what is there now is not the sweep's)
     try:
         return run_sweep(jobs, out, workers=workers, scheduler=scheduler, progress=progress, batch=batch)
     except SweepError:  # (a scheduler it cannot use: the folder it made for nothing goes again)
-        if created and Path(out).is_dir() and not any(Path(out).iterdir()):
-            Path(out).rmdir()
+        if created and Path(out).is_dir() and {p.name for p in Path(out).iterdir()} <= {"manifest.json"}:
+            shutil.rmtree(out)
         raise
     except KeyboardInterrupt:
         # the runs it stopped leave only their temporary folders, which say "running": gone with

@@ -755,6 +755,30 @@ def test_a_sweep_does_not_write_into_a_folder_of_the_users_files(tmp_path, capsy
     assert (out / "sweep.csv").read_text() == "my own table\n" and sorted(p.name for p in out.iterdir()) == ["sweep.csv"]
 
 
+def test_a_sweep_resumes_only_over_tables_it_wrote(tmp_path, capsys):
+    """A folder of the user's with a runs/ folder in it (a project where runs were made) and a
+    report.html of theirs: refused, and nothing written. A finished sweep's own folder resumes and
+    rewrites its tables; a file of the user's put into it later is refused by name and kept."""
+    flags = ["--seeds", "1", "--duration", "5", "--set", "outputs.warmup_s=0", "--no-progress", "--workers", "1"]
+    mine = tmp_path / "project"
+    (mine / "runs").mkdir(parents=True)
+    (mine / "report.html").write_text("my report")
+    assert main(["sweep", str(CROSS4), "--out", str(mine), *flags]) == 2
+    assert "report.html, which no sweep there recorded writing" in capsys.readouterr().err
+    assert (mine / "report.html").read_text() == "my report" and not any((mine / "runs").iterdir())
+    out = tmp_path / "study"
+    assert main(["sweep", str(CROSS4), "--out", str(out), *flags]) == 0
+    created = json.loads((out / "manifest.json").read_text())["created"]
+    assert {"sweep.csv", "sweep.md", "report.html", "runs"} <= set(created)
+    (out / "sweep.md").write_text("stale")
+    assert main(["sweep", str(CROSS4), "--out", str(out), *flags]) == 0  # (a resume: its tables again)
+    assert (out / "sweep.md").read_text() != "stale"
+    (out / "notes.txt").write_text("mine")
+    capsys.readouterr()
+    assert main(["sweep", str(CROSS4), "--out", str(out), *flags]) == 2
+    assert "notes.txt" in capsys.readouterr().err and (out / "notes.txt").read_text() == "mine"
+
+
 @pytest.mark.parametrize("flags", [["--set", "demand.begin_s=100", "--set", "demand.end_s=10"],
                                    ["--set", "scenario.begin_s=100000"]])
 def test_a_demand_that_gives_the_run_no_vehicle_is_refused(tmp_path, capsys, flags):
