@@ -52,7 +52,7 @@ class Sumo:
 
     step_length_s: float = 0.1  # SUMO step [s] (a whole multiple of controller.plant_step_s)
     lateral_resolution_m: float = 0.0  # sublane width [m]; 0: no sublane model (moveToXY places exactly either way)
-    extra_args: tuple[str, ...] = ()  # further SUMO options, e.g. ["--max-depart-delay", "300"]; not those the run sets itself, nor any that writes a file
+    extra_args: tuple[str, ...] = ()  # further SUMO options, e.g. ["--max-depart-delay", "300"]; not those the run sets itself, nor any that writes or reads a file
 
 
 # the work a run may take per simulated second, per vehicle: plant steps per SUMO step, and nominal

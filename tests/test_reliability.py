@@ -281,6 +281,12 @@ def _scenario_copy(tmp_path, old=None, new=None, extra=""):
      "--device.rerouting.output would write files outside the run folder"),
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--save-state.times", "5"]', "",
      "--save-state.times would write files outside the run folder"),
+    # options that read a file the run neither checks nor keeps (SUMO read one from anywhere, or
+    # stopped once started with only "Process Error")
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--weight-files", "/etc/hostname"]', "",
+     "--weight-files would have SUMO read a file that the run does not check"),
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--load-state=state.xml"]', "",
+     "--load-state=state.xml would have SUMO read a file"),
     # an option the run sets itself (SUMO refused it once started), and one that makes SUMO wait for ever
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--time-to-teleport", "-1"]', "",
      "--time-to-teleport: the run sets it itself"),

@@ -238,29 +238,49 @@ def sumo_writing_options() -> set[str]:
     """Names of SUMO's options that write a file (of type FILE in its output and report sections, or
     named ``*output*``; ``*.file``, ``save-state.*`` and the ssm device's; ``output-prefix``, and
     saving its configuration), from ``sumo --save-template --save-commented``."""
-    if not _SUMO_WRITING:
-        import re
-        import subprocess
-
-        from nrtraffic.sumo.netbuild import sumo_binary
-
-        exe = sumo_binary("sumo")
-        text = subprocess.run([str(exe), "--save-template", "stdout", "--save-commented"], capture_output=True,
-                              text=True, check=True).stdout
-        section = None
-        for line in text.splitlines():
-            m = re.match(r"\s{4}<([\w.-]+)>\s*$", line)
-            if m:
-                section = m.group(1)
-                continue
-            m = re.match(r'\s{8}<([\w.-]+) value=.*type="([^"]+)"', line)
-            if m and m.group(2).startswith("FILE") and not m.group(1).endswith("input-file") and (
-                    section in ("output", "report") or "output" in m.group(1)):
-                _SUMO_WRITING.add(m.group(1))
-            elif m and (m.group(1).startswith(("save-state.", "device.ssm.")) or m.group(1).endswith(".file")):
-                _SUMO_WRITING.add(m.group(1))  # (state files; the ssm device writes ssm_<vehicle>.xml unasked)
-        _SUMO_WRITING.update({"output-prefix", "output-suffix", "save-configuration", "save-template", "save-schema"})
+    _read_template()
     return _SUMO_WRITING
+
+
+def sumo_reading_options() -> set[str]:
+    """Names of SUMO's options that read a file other than the run's own (network, routes,
+    detectors, configuration: :data:`RUN_SETS`): every other option of type FILE that does not write
+    (``--weight-files``, ``--load-state``, ``--gui-settings-file``, ...)."""
+    _read_template()
+    return _SUMO_READING
+
+
+_SUMO_READING: set[str] = set()
+
+
+def _read_template() -> None:
+    """Sort SUMO's file options into :data:`_SUMO_WRITING` and :data:`_SUMO_READING`, once."""
+    if _SUMO_WRITING:
+        return
+    import re
+    import subprocess
+
+    from nrtraffic.sumo.netbuild import sumo_binary
+
+    exe = sumo_binary("sumo")
+    text = subprocess.run([str(exe), "--save-template", "stdout", "--save-commented"], capture_output=True,
+                          text=True, check=True).stdout
+    section, files = None, set()
+    for line in text.splitlines():
+        m = re.match(r"\s{4}<([\w.-]+)>\s*$", line)
+        if m:
+            section = m.group(1)
+            continue
+        m = re.match(r'\s{8}<([\w.-]+) value=.*type="([^"]+)"', line)
+        if m and m.group(2).startswith("FILE"):
+            files.add(m.group(1))
+        if m and m.group(2).startswith("FILE") and not m.group(1).endswith("input-file") and (
+                section in ("output", "report") or "output" in m.group(1)):
+            _SUMO_WRITING.add(m.group(1))
+        elif m and (m.group(1).startswith(("save-state.", "device.ssm.")) or m.group(1).endswith(".file")):
+            _SUMO_WRITING.add(m.group(1))  # (state files; the ssm device writes ssm_<vehicle>.xml unasked)
+    _SUMO_WRITING.update({"output-prefix", "output-suffix", "save-configuration", "save-template", "save-schema"})
+    _SUMO_READING.update(files - _SUMO_WRITING - set(RUN_SETS))
 
 
 _SUMO_SHORT: dict[str, str] = {}
@@ -371,6 +391,11 @@ def check_sumo_args(args: tuple[str, ...]) -> None:
     if writing:
         raise NetworkError(f"sumo.extra_args: {', '.join(writing)} would write files outside the run folder; "
                            "leave it out (outputs.sumo_fcd = true writes fcd.xml into the run)")
+    reading = [_shown(a, n) for a, n in given if n in sumo_reading_options()]
+    if reading:
+        raise NetworkError(f"sumo.extra_args: {', '.join(reading)} would have SUMO read a file that the run does not "
+                           "check or copy into its folder (a replay of the run could not find it); leave it out: "
+                           "the run's inputs are the scenario's network and demand")
 
 
 def edge_lanes(net_path: Path, edges) -> list[tuple[str, str, float]]:
