@@ -310,8 +310,8 @@ def main(argv: list[str] | None = None) -> int:
     """The ``nrtraffic`` command; returns its exit status. SIGTERM and Ctrl-C are handled from its
     first instruction (:mod:`runners.interrupts`; nothing heavy is imported before it): a run that
     they stop always leaves a summary.json. As the process's command (``argv`` None: the console
-    script, ``python -m runners.cli``) the handlers stay installed when it returns, and a signal
-    after that is only noted (the process is exiting with its status); called with ``argv`` (from
+    script, ``python -m runners.cli``) a signal after it has its status is ignored (the process is
+    exiting with that status, :func:`~runners.interrupts.settle`); called with ``argv`` (from
     Python) the caller's handlers are put back."""
     interrupts.install()
     try:
@@ -331,6 +331,8 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if argv is not None:
             interrupts.uninstall()
+        else:
+            interrupts.settle()
 
 
 def _main(argv: list[str] | None) -> int:

@@ -9,8 +9,9 @@ ignored while that is written. A second signal while one is deferred stops at on
 slow check). Once the run's results are written the
 command defers again (:func:`defer`), so that its figures and report are finished; :func:`pending`
 then tells the command that it was asked to stop. Once the command has its exit status
-(:func:`finish`) a signal is only noted, whichever came before: the process keeps the handlers
-until it exits, so that a signal while the interpreter shuts down is neither a traceback nor a kill.
+(:func:`finish`) a signal is only noted, whichever came before, and once the command returns it
+is ignored (:func:`settle`), so that a signal while the interpreter shuts down is neither a
+traceback nor a kill.
 
 Only the command installs these handlers (:func:`install`, in the main thread); in a library call,
 a test or a sweep's worker :func:`arm` and :func:`defer` do nothing.
@@ -95,6 +96,16 @@ def finish() -> None:
     global _armed, _finished
     if _installed:
         _armed, _finished = False, True
+
+
+def settle() -> None:
+    """The process is about to exit with the command's status: SIGTERM and SIGINT are ignored from
+    now on. (The interpreter, shutting down, puts back the default action of a signal whose handler
+    is Python's, which would end the process with 143 or 130 after its outputs were complete and
+    its status printed; an ignored signal it leaves ignored.)"""
+    if _installed:
+        for sig in _installed:
+            signal.signal(sig, signal.SIG_IGN)
 
 
 def pending() -> str | None:
