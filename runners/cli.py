@@ -65,7 +65,7 @@ def _add_run(sub) -> None:
     p.add_argument("--seed", type=_seed, default=None, help="random seed of arrivals and SUMO (default: the scenario's)")
     p.add_argument("--duration", type=_duration, default=None, metavar="S",
                    help="simulated time [s] (default: the scenario's; 0 runs until every vehicle has left)")
-    p.add_argument("--out", type=Path, default=None, metavar="DIR",
+    p.add_argument("--out", type=_folder, default=None, metavar="DIR",
                    help="run directory (default: runs/<scenario>-seed<N>)")
     p.add_argument("--force", action="store_true",
                    help="replace the earlier run's files in --out when it is not a finished run of this configuration "
@@ -91,7 +91,7 @@ def _add_paper(sub) -> None:
     p.add_argument("experiment", choices=["curved", "cbf", "all"],
                    help="curved: section 4.1, tracking on a curved road; cbf: section 4.2, barrier functions; "
                         "all: both (into DIR/curved and DIR/cbf)")
-    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
+    p.add_argument("--out", type=_folder, required=True, metavar="DIR", help="output folder")
     p.add_argument("--seed", type=_seed, default=None, help="random seed (default: the scenario's)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -109,7 +109,7 @@ def _add_baseline(sub) -> None:
                         "network's own phases), or the junctions rebuilt as " + ", ".join(BASELINES[2:]))
     p.add_argument("--seed", type=_seed, default=None, help="random seed (default: the scenario's)")
     p.add_argument("--duration", type=_duration, default=None, metavar="S", help="simulated time [s]")
-    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="run directory")
+    p.add_argument("--out", type=_folder, required=True, metavar="DIR", help="run directory")
     p.add_argument("--force", action="store_true",
                    help="replace the earlier run's files in --out when it is not a finished run of this configuration "
                         "(the folder's other files stay)")
@@ -157,7 +157,7 @@ def _add_cluster_args(p) -> None:
     from runners.clusters import add_arguments
 
     add_arguments(p, where)  # --cluster slurm|pbs and the batch jobs' cores, memory, walltime, queue, account
-    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
+    p.add_argument("--out", type=_folder, required=True, metavar="DIR", help="output folder")
     p.add_argument("--force", action="store_true",
                    help="run again, and replace, run directories in --out that were made with another "
                         "configuration (without it such a resume is refused); also allows more than 20000 runs")
@@ -189,7 +189,7 @@ def _add_replay(sub) -> None:
     p.add_argument("--rtol", type=_tolerance, default=RTOL, help=f"relative tolerance (default {RTOL:g})")
     p.add_argument("--atol", type=_tolerance, default=ATOL, help=f"absolute tolerance, in each figure's unit "
                    f"(default {ATOL:g})")
-    p.add_argument("--out", type=Path, default=None, metavar="DIR",
+    p.add_argument("--out", type=_folder, default=None, metavar="DIR",
                    help="keep the replay in DIR (default: a temporary folder, removed); never the run itself")
     p.add_argument("--force", action="store_true",
                    help="replace an earlier run's files in --out when it holds one")
@@ -208,7 +208,7 @@ def _add_compare(sub) -> None:
                     "not a finished run, or runs of different scenarios.")
     p.add_argument("run_dirs", type=Path, nargs="+", metavar="RUN_DIR",
                    help="run directories written by run or baseline (or a sweep's runs), two or more")
-    p.add_argument("--out", type=Path, default=None, metavar="DIR",
+    p.add_argument("--out", type=_folder, default=None, metavar="DIR",
                    help="where to write the report (default: runs/<scenario>-compare); an empty or new folder")
     p.add_argument("--force", action="store_true",
                    help="replace the comparison's own files (compare.html, compare_*.csv) in a folder that holds "
@@ -304,6 +304,14 @@ def _add_schema(sub) -> None:
                                    "a committed copy is docs/scenario.schema.json).")
     p.add_argument("--markdown", action="store_true", help="the key reference in markdown instead (docs/scenario_keys.md)")
     p.add_argument("--write", type=Path, default=None, metavar="FILE", help="write to FILE instead of printing")
+
+
+def _folder(text: str) -> Path:
+    """An ``--out`` folder as given: an empty one (``--out ""``, an unset shell variable) would be
+    the working folder, which nobody means."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("is empty: name a folder (--out runs/mine)")
+    return Path(text)
 
 
 def main(argv: list[str] | None = None) -> int:

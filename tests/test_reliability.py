@@ -746,6 +746,17 @@ def test_a_trajectory_step_cut_short_by_an_interrupt_is_dropped_and_the_file_sta
     assert t["t"].tolist() == [0.0, 0.5, 1.0] and (t["vehicle_id"] == "a").all()
 
 
+@pytest.mark.parametrize("command", [["run", str(CROSS4)], ["baseline", str(CROSS4)],
+                                     ["sweep", str(CROSS4), "--seeds", "1"]])
+def test_an_empty_out_is_refused_not_taken_for_the_working_folder(command, tmp_path, capsys, monkeypatch):
+    """``--out ""`` (an unset shell variable) was the working folder: the run wrote into it."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exc:
+        main([*command, "--out", "", "--duration", "5", "--no-progress"])
+    assert exc.value.code == 2 and "--out: is empty: name a folder" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())
+
+
 @pytest.mark.parametrize("name", ["with,comma", "col:on", "q'uote"])
 def test_an_out_path_sumo_would_misread_is_refused(tmp_path, capsys, name):
     """SUMO reads a comma in a file name as a list separator and host:port as a socket; a quote
