@@ -390,7 +390,8 @@ class Engine:
             names = ", ".join(f"{v} ({st.records[v].movement}, {st.records[v].status})" for v in waiting[:12])
             more = f" and {len(waiting) - 12} more" if len(waiting) > 12 else ""
             raise Gridlock(f"junction {j.id or '(road)'}: no vehicle crossed for {st.t - j.idle_since:.0f} s "
-                           f"(outputs.stall_s = {stall:g}) while {len(waiting)} waited: {names}{more}")
+                           f"(outputs.stall_s = {stall:g}) while {len(waiting)} in its control zone waited to "
+                           f"cross: {names}{more}")
 
     # ------------------------------------------------------------------ what the tick composes
     def _push_and_release(self) -> None:

@@ -419,6 +419,9 @@ class ListedVehicle:
             raise ScenarioError(f"vehicles.{self.id}.speed_profile times must increase")
 
 
+MIN_STALL_S = 30.0  # the shortest gridlock watchdog (outputs.stall_s) [s]
+
+
 @dataclass(frozen=True)
 class Outputs:
     """``[outputs]``: what the run directory holds."""
@@ -429,13 +432,17 @@ class Outputs:
     sumo_fcd: bool = False  # SUMO's floating-car data of every vehicle (fcd.xml), e.g. for SUMO-driven leaders
     warmup_s: float = 0.0  # figures count the vehicles that entered the control zone from here on [s]
     measure_end_s: float = 0.0  # ... and up to here (0: the end of the run) [s]
-    stall_s: float = 120.0  # a junction where no vehicle crossed for this long while vehicles waited stops the run as gridlocked (0: never) [s]
+    stall_s: float = 120.0  # a junction where no vehicle crossed for this long while vehicles in its control zone waited stops the run as gridlocked (0: never; else >= 30 s, as crossing a control zone takes tens of seconds) [s]
 
     def validate(self) -> None:
         if not (0 < self.trajectory_interval_s < math.inf):
             raise ScenarioError("outputs.trajectory_interval_s must be > 0")
         if not (0 <= self.stall_s < math.inf):
             raise ScenarioError(f"outputs.stall_s must be >= 0 (0: no watchdog), got {self.stall_s!r}")
+        if 0 < self.stall_s < MIN_STALL_S:
+            raise ScenarioError(f"outputs.stall_s = {self.stall_s:g} s would take ordinary traffic for a gridlock (a "
+                                f"car needs tens of seconds through a control zone, and waits for those ahead): give "
+                                f"at least {MIN_STALL_S:g} s, or 0 for no watchdog")
         if self.warmup_s < 0 or self.measure_end_s < 0:
             raise ScenarioError("outputs.warmup_s and outputs.measure_end_s must be >= 0")
         if self.measure_end_s and self.measure_end_s <= self.warmup_s:

@@ -36,7 +36,7 @@ def test_a_junction_that_makes_no_progress_stops_the_run_as_gridlocked(tmp_path,
     s = json.loads((out / "summary.json").read_text())
     assert s["status"] == "gridlock" and "junction C" in s["error"]
     assert s["sim_time_s"] < 200.0  # stopped early
-    waiting = [w.split(" (")[0] for w in s["error"].split("waited: ")[1].split("), ")]
+    waiting = [w.split(" (")[0] for w in s["error"].split("waited to cross: ")[1].split("), ")]
     assert len(waiting) >= 2
     assert (out / "vehicles.csv").is_file() and (out / "tripinfo.xml").is_file()
 

@@ -251,6 +251,9 @@ def _scenario_copy(tmp_path, old=None, new=None, extra=""):
     ("", "", '\n[[vehicles]]\nid = "far"\napproach = "N_in.straight"\ndepart_s = 1.0\ndepart_pos_m = 99999.0\n',
      "vehicles.far.depart_pos_m = 99999 m lies beyond its first edge N_in"),
     ('preset = "paper"', 'preset = "paper"\nCaf = 1.0', "", "vehicle parameter Caf = 1 is outside its physical range"),
+    # a watchdog shorter than a crossing: ordinary waiting stopped the run as a gridlock
+    ("trajectory_interval_s = 0.5", "trajectory_interval_s = 0.5\nstall_s = 0.1", "",
+     "outputs.stall_s = 0.1 s would take ordinary traffic for a gridlock"),
     ("trajectory_interval_s = 0.5", "trajectory_interval_s = 0.25", "", "whole multiple of sumo.step_length_s"),
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--no-such-option", "1"]', "",
      "no option --no-such-option"),
