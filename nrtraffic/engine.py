@@ -9,8 +9,10 @@ Each SUMO step (``sumo.step_length_s``), at time ``t`` with SUMO and the embedde
 2. **each junction decides**: reserved starts from rest that have come; the vehicles whose centre
    of gravity crossed a control-zone entry are scheduled (coordinator -> merge time ->
    energy-optimal profile), batched or held (:class:`~nrtraffic.junction.admission.Admission`);
-3. **measure**: every controlled vehicle's leader on its path; the own collision check; the
-   trajectory log;
+   controlled vehicles that would enter their merging zone late stop before it and, standing,
+   have their start reserved again (:class:`~nrtraffic.junction.late.LateGuard`);
+3. **measure**: every controlled vehicle's leader on its path (a late one's: its merging-zone
+   entry, where that is nearer); the own collision check; the trajectory log;
 4. **advance** the controlled vehicles to ``t + dt`` in the compiled kernel (tracker, barriers,
    plant sub-steps; :class:`~nrtraffic.control.kernel.Kernel`);
 5. **write to SUMO**: their poses (``moveToXY``); vehicles past the merging zone released to
@@ -37,6 +39,7 @@ from nrtraffic.control.kernel import Kernel
 from nrtraffic.demand import Demand
 from nrtraffic.junction import Layout, build, humans
 from nrtraffic.junction.admission import Admission
+from nrtraffic.junction.late import LateGuard
 from nrtraffic.lifecycle import State
 from nrtraffic.measure import LEADER_LOOKAHEAD_M
 from nrtraffic.planning.coordinator import Coordinator
@@ -204,6 +207,7 @@ class Engine:
             self.admission = Admission(st, {vid: (mv, t, speed) for vid, mv, t, speed, *_ in departures},
                                        {v[0] for v in departures if v[5] == "human"},
                                        {v.id: v for v in self.sc.vehicles})
+            self.late = LateGuard(st, self.admission)
             copy = sdir / self.network_path.name  # the run directory's own copy, where there is one
             write_sumocfg(sdir / "run.sumocfg", copy if copy.is_file() else self.network_path, routes,
                           self.sc.sumo.step_length_s, self.sc.general.begin_s)
@@ -339,9 +343,11 @@ class Engine:
         lap("sumo_io")
         # 2. each junction decides
         adm.step(dt)
+        self.late.step()
         lap("admission")
         # 3. measure
         measure.leaders(st, driven)
+        self.late.close_gates()
         lap("leaders")
         measure.collisions_geometric(st, self.collisions_geometric, self.collision_log)
         lap("collision_check")

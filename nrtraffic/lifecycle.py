@@ -9,7 +9,7 @@ The legal transitions (:data:`TRANSITIONS`):
     batched      -> held | starting | controlled
     held         -> starting | controlled
     starting     -> controlled | lost
-    controlled   -> released | lost
+    controlled   -> released | starting (late: its start reserved again) | lost
     released     -> approaching (its next junction) | gone
     sumo         -> sumo (its next junction) | human | gone
     human        -> reserved | gone
@@ -23,7 +23,9 @@ The legal transitions (:data:`TRANSITIONS`):
   again on the way;
 - ``starting``: standing at its stop line (or in a standing queue before it), its start from rest
   reserved;
-- ``controlled``: the kernel drives it;
+- ``controlled``: the kernel drives it; one held up before its merging zone so long that it would
+  enter it late stops before it, and its start from rest is reserved again
+  (:mod:`nrtraffic.junction.late`);
 - ``released``: past the merging zone, handed back to SUMO, still read as a possible leader;
 - ``sumo``: SUMO drives it throughout (a baseline, a scripted vehicle);
 - ``human`` -> ``reserved`` -> ``crossing`` -> ``crossed``: a human driver on its way to the stop
@@ -76,7 +78,7 @@ TRANSITIONS: dict[State, frozenset[State]] = {
     S.BATCHED: frozenset({S.HELD, S.STARTING, S.CONTROLLED}),
     S.HELD: frozenset({S.STARTING, S.CONTROLLED}),
     S.STARTING: frozenset({S.CONTROLLED, S.LOST}),
-    S.CONTROLLED: frozenset({S.RELEASED, S.LOST}),
+    S.CONTROLLED: frozenset({S.RELEASED, S.STARTING, S.LOST}),
     S.RELEASED: frozenset({S.APPROACHING, S.GONE}),  # approaching: the next junction of its trip
     S.LOST: frozenset(),
     S.SUMO: frozenset({S.SUMO, S.HUMAN, S.GONE}),  # sumo -> sumo: on to the next junction of its trip
@@ -149,6 +151,7 @@ class VehicleRecord:
     t_arrive: float = math.nan  # when its centre of gravity crossed the control-zone entry [s] ...
     s_arrive: float = math.nan  # ... and where on its path it was then [m] (delay is counted from there)
     look_after: float = -math.inf  # before its zone entry: the earliest time it can reach it [s]
+    replans: int = 0  # how often it was late under control and its start was reserved again
 
 
 class Lifecycle:

@@ -47,7 +47,7 @@ VEHICLE_COLUMNS = [
     "v_merge_planned_mps",
     "min_center_distance_m", "max_abs_accel_mps2", "cbf_long_active_frac", "cbf_lat_active_frac",
     "cbf_long_fallbacks", "cbf_lat_fallbacks", "min_h_long", "min_h_lat", "plant_steps", "t_held_s", "t_release_s",
-    "sumo_time_loss_s", "stops", "status",
+    "replans", "sumo_time_loss_s", "stops", "status",
 ]
 
 TRAJECTORY_COLUMNS = {
@@ -470,7 +470,7 @@ def vehicle_table(records, paths: dict, trips: dict, control: bool) -> pd.DataFr
             "cbf_long_fallbacks": a[kb.ACC_LONG_FALLBACK], "cbf_lat_fallbacks": a[kb.ACC_LAT_FALLBACK],
             "min_h_long": fin(a[kb.ACC_MIN_H_LONG]), "min_h_lat": fin(a[kb.ACC_MIN_H_LAT]),
             "plant_steps": steps if rec.controlled else 0.0,
-            "t_held_s": rec.t_held, "t_release_s": rec.t_release,
+            "t_held_s": rec.t_held, "t_release_s": rec.t_release, "replans": rec.replans,
             "sumo_time_loss_s": trips.get(rec.vehicle_id, (math.nan,))[0],
             "stops": trips.get(rec.vehicle_id, (math.nan, math.nan))[1],
             "status": rec.status,

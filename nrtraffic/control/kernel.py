@@ -102,13 +102,19 @@ class Kernel:
         self.lane_index, self.pl_off, self.pl_lane, self.pl_start, self.pl_scale = pack_path_lanes(
             [paths[k] for k in self.path_names])
 
-    def take(self, vid: str, x0, packed_profile, t: float, s0: float, lat0: float, m, acc_carried) -> None:
+    def take(self, vid: str, x0, packed_profile, t: float, s0: float, lat0: float, m, acc_carried,
+             t_merge: float = math.inf, again: bool = False) -> None:
         """Take vehicle ``vid`` under control at time ``t`` [s]: state ``x0``, packed profile from
-        arc length ``s0`` [m] of movement ``m``'s path, lateral offset ``lat0`` [m]; its energy and
-        fuel so far (``acc_carried``, while SUMO drove it in the control zone) carry over."""
+        arc length ``s0`` [m] of movement ``m``'s path, lateral offset ``lat0`` [m], planned
+        merging-zone entry ``t_merge`` [s]; its energy and fuel so far (``acc_carried``, while SUMO
+        drove it in the control zone) carry over. ``again``: it was under control before
+        (:mod:`nrtraffic.junction.late`): all its figures carry over."""
         hint = int(np.clip(np.searchsorted(m.path.s, s0) - 1, 0, len(m.path.s) - 2))
         self.table.append(vid, x0, packed_profile, t, s0, lat0, m.path.xy_at(s0), self.path_index[m.name], hint,
-                          (m.s_merge, m.s_exit))
+                          (m.s_merge, m.s_exit), t_merge)
+        if again:
+            self.table.acc[-1] = acc_carried
+            return
         for k in (kb.ACC_ENERGY, kb.ACC_FUEL):
             self.table.acc[-1, k] = acc_carried[k]
 

@@ -25,14 +25,15 @@ class ControlledTable:
     [s, m] the profile starts, ``path_id``/``hint`` its path and the path segment it was last
     on, ``acc`` its running figures, ``out`` the kernel's outputs of the last step, ``lead_idx``/
     ``lead_ext``/``gap`` its leader (a row, or an external state) and the bumper gap to it [m],
-    ``s_zone`` its merging-zone entry and exit on its path [m], ``s_last`` its arc length at
+    ``s_zone`` its merging-zone entry and exit on its path [m], ``t_merge`` its planned
+    merging-zone entry [s], ``s_last`` its arc length at
     the start of the step [m], ``act`` the actuators' output (with an actuator lag), ``xe`` the
     state observer's estimate (with an observer). ``rows`` is each vehicle's row in SUMO's table
     of the step (-1: SUMO no longer lists it).
     """
 
     COLUMNS = ("X", "U", "prof", "t_enter", "s_enter", "path_id", "hint", "acc", "out", "lead_idx", "lead_ext",
-               "gap", "s_zone", "s_last", "act", "xe")
+               "gap", "s_zone", "t_merge", "s_last", "act", "xe")
 
     def __init__(self) -> None:
         self.ids: list[str] = []
@@ -51,6 +52,7 @@ class ControlledTable:
         self.lead_ext = np.zeros((n, 6))
         self.gap = np.full(n, np.nan)
         self.s_zone = np.zeros((n, 2))
+        self.t_merge = np.zeros(n)
         self.s_last = np.zeros(n)
         self.act = np.zeros((n, 2))
         self.xe = np.zeros((n, 6))
@@ -59,16 +61,16 @@ class ControlledTable:
         return len(self.ids)
 
     def append(self, vid: str, x0, prof, t0: float, s0: float, lat0: float, ref0, pid: int, hint: int,
-               s_zone: tuple[float, float]) -> None:
+               s_zone: tuple[float, float], t_merge: float = math.inf) -> None:
         """A vehicle taken under control at time ``t0`` [s]: state ``x0``, profile ``prof`` from
         arc length ``s0`` [m] of path ``pid``, lateral offset ``lat0`` [m], reference point
-        ``ref0`` (x, y) [m]; SUMO drove it at constant speed, straight ahead, until now."""
+        ``ref0`` (x, y) [m], planned merging-zone entry ``t_merge`` [s]; SUMO drove it at constant speed, straight ahead, until now."""
         self.ids.append(vid)
         row = {
             "X": x0[None], "U": np.zeros((1, 2)), "prof": prof[None], "t_enter": [t0], "s_enter": [s0],
             "path_id": [pid], "hint": [hint], "acc": kb.new_acc(1), "out": np.full((1, kb.N_OUT), np.nan),
             "lead_idx": [kb.NO_LEADER], "lead_ext": np.zeros((1, 6)), "gap": [np.nan],
-            "s_zone": [list(s_zone)], "s_last": [s0],
+            "s_zone": [list(s_zone)], "t_merge": [t_merge], "s_last": [s0],
             "act": np.zeros((1, 2)),  # SUMO drove it at constant speed, straight ahead
             "xe": x0[None],  # the observer starts from the state at admission
         }

@@ -350,7 +350,7 @@ class Admission:
         rec.plan_intrusion = asg.plan_intrusion_m
         # (with what it used while SUMO drove it in the control zone)
         st.kernel.take(vid, x0, asg.profile.packed(N_PROFILE_SEG), st.t, s_proj, lat0, st.paths[rec.movement],
-                       rec.acc)
+                       rec.acc, asg.t_merge, again=rec.replans > 0)
 
     # ------------------------------------------------------------ behind a human driver
     def blocked_ahead(self, vid: str) -> bool:

@@ -460,6 +460,16 @@ class Coordinator:
             self._last_on_lane[a.lane] = new
         return new
 
+    def cancel(self, vehicle_id: str) -> None:
+        """Give up ``vehicle_id``'s plan or reservation (late); a lane's or movement's last is then the latest left."""
+        self._reserved = [a for a in self._reserved if a.vehicle_id != vehicle_id]
+        for last, key in ((self._last_on_lane, "lane"), (self._last_on_movement, "movement")):
+            for k in [k for k, a in last.items() if a.vehicle_id == vehicle_id]:
+                left = [a for a in self._reserved if getattr(a, key) == k]
+                last.pop(k)
+                if left:
+                    last[k] = max(left, key=lambda a: a.t_merge)
+
     def last_on_lane(self, lane: str) -> Assignment | None:
         """The last assignment on entry lane ``lane`` (the one a new request there follows)."""
         return self._last_on_lane.get(lane)

@@ -1,0 +1,133 @@
+"""Controlled vehicles that can no longer keep their plan: none enters its merging zone late.
+
+A controlled vehicle is driven to enter its merging zone at its planned time ``t_merge``, and its
+occupancy of the conflict areas is reserved around that time (``coordinator.conflict_margin_s``
+before and after). Something its plan did not foresee can hold it up before the merging zone: a
+car of SUMO's that changed into its lane ahead of it inside the control zone, a queue from its exit
+road, a vehicle whose start was reserved later standing in its way. Its barrier keeps it behind
+that vehicle, and when the way clears its reference, long gone ahead, would take it into the
+merging zone later than reserved, into the windows of the vehicles crossing its path.
+
+Each step, a controlled vehicle still before its merging zone is *late* when even its fastest entry
+from now (the planning's ``u_max_mps2`` from its speed, up to ``v_max_mps``) comes more than half
+the conflict margin after ``t_merge``. Then:
+
+- its merging-zone entry is closed to it: a standing obstacle for the longitudinal barrier, so that
+  it stops with its front bumper at the entry (where it can still stop there at the barrier's
+  braking, ``barriers.max_braking_mps2``; a vehicle too close to stop has nearly kept its time);
+- once it stands, its plan and reservation are given up (:meth:`~nrtraffic.planning.coordinator.
+  Coordinator.cancel`), SUMO holds it where it stands, and its start from rest is reserved again
+  behind the last vehicle of its lane, as for any vehicle standing at its stop line
+  (``controlled`` -> ``starting``, :meth:`~nrtraffic.junction.admission.Admission.reserve_from_rest`).
+
+A vehicle's ``replans`` in vehicles.csv counts how often this happened to it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from nrtraffic.control import batch as kb
+
+STANDING_MPS = 0.1  # below this speed a late vehicle stands, and its start is reserved again [m/s]
+
+
+def earliest_entry_s(v: np.ndarray, D: np.ndarray, a: float, v_max: float) -> np.ndarray:
+    """Shortest time [s] to cover ``D`` [m] from speed ``v`` [m/s] accelerating at ``a`` [m/s^2]
+    up to ``v_max`` [m/s] (a speed above it is kept)."""
+    v = np.asarray(v, dtype=float)
+    D = np.maximum(np.asarray(D, dtype=float), 0.0)
+    top = np.maximum(v_max, v)
+    d_acc = (top * top - v * v) / (2.0 * a)  # distance to reach the top speed
+    t_acc = (-v + np.sqrt(v * v + 2.0 * a * np.minimum(D, d_acc))) / a
+    return t_acc + np.maximum(D - d_acc, 0.0) / top
+
+
+class LateGuard:
+    """The late vehicles of a run (the module's docstring): :meth:`step` after admission hands
+    the standing ones back for a new start, :meth:`close_gates` after the leader search makes
+    the merging-zone entry the others' leader."""
+
+    def __init__(self, st, admission) -> None:
+        self.st, self.admission = st, admission
+        sc = st.sc
+        self.tol_s = 0.5 * sc.coordinator.conflict_margin_s
+        self.a, self.v_max = sc.planning.u_max_mps2, sc.planning.v_max_mps
+        self.brake = sc.barriers.max_braking_mps2
+        self.gated: dict[str, float] = {}  # late vehicle -> arc length [m] its centre of gravity stops at
+
+    def _late(self) -> np.ndarray:
+        """Which rows of the kernel's table are late now."""
+        st, ctl = self.st, self.st.kernel.table
+        s = ctl.out[:, kb.OUT_S]
+        before = s < ctl.s_zone[:, 0]
+        if not before.any():
+            return before
+        v = np.hypot(ctl.X[:, 2], ctl.X[:, 3])
+        t_in = st.t + earliest_entry_s(v, ctl.s_zone[:, 0] - s, self.a, self.v_max)
+        return before & (t_in > ctl.t_merge + self.tol_s)
+
+    def step(self) -> None:
+        """Find the late vehicles; those standing are handed back to SUMO where they stand, and
+        their start from rest is reserved again."""
+        st = self.st
+        ctl = st.kernel.table
+        self.gated.clear()
+        if not ctl.ids:
+            return
+        late = self._late()
+        if not late.any():
+            return
+        s = ctl.out[:, kb.OUT_S]
+        v = np.hypot(ctl.X[:, 2], ctl.X[:, 3])
+        cg = st.params.cg_to_front
+        again = np.zeros(len(ctl.ids), dtype=bool)
+        for i in np.flatnonzero(late).tolist():
+            vid = ctl.ids[i]
+            if v[i] < STANDING_MPS and vid in st.snap.row:
+                again[i] = True
+                continue
+            stop = float(ctl.s_zone[i, 0]) - cg  # front bumper at the merging-zone entry
+            if v[i] * v[i] / (2.0 * self.brake) <= stop - s[i]:
+                self.gated[vid] = stop
+        if again.any():
+            self._start_again(again)
+
+    def _start_again(self, again: np.ndarray) -> None:
+        st, ctl = self.st, self.st.kernel.table
+        ids = [v for v, k in zip(ctl.ids, again) if k]
+        for i in np.flatnonzero(again).tolist():
+            st.records[ctl.ids[i]].acc = ctl.acc[i].copy()
+        ctl.keep(~again)
+        for vid in ids:
+            rec = st.records[vid]
+            st.junctions[rec.junction].coord.cancel(vid)
+            st.sumo.release(vid)
+            st.sumo.hold_speed(vid, 0.0)
+            rec.replans += 1
+            self.admission.reserve_from_rest(vid)  # (controlled -> starting)
+
+    def close_gates(self) -> None:
+        """Make the merging-zone entry the leader of each late vehicle that can stop before it,
+        where it is nearer than the vehicle ahead: a standing obstacle whose centre of gravity
+        lies the barrier's stopping distance ``d0`` beyond the stop."""
+        if not self.gated:
+            return
+        st, kern = self.st, self.st.kernel
+        ctl = kern.table
+        d0 = float(kern.cfg[kb.CFG_D0])  # centre to centre at a stop behind a leader [m]
+        slack = d0 - st.params.length  # ... less the bumper gap there [m]
+        row = {v: i for i, v in enumerate(ctl.ids)}
+        for vid, stop in self.gated.items():
+            i = row.get(vid)
+            if i is None:
+                continue
+            s = float(ctl.out[i, kb.OUT_S])
+            room = stop - s  # how far its centre of gravity may go on [m]
+            if ctl.lead_idx[i] != kb.NO_LEADER and not math.isnan(ctl.gap[i]) and ctl.gap[i] - slack < room:
+                continue  # (the vehicle ahead stops it sooner)
+            px, py = st.paths[st.records[vid].movement].path.xy_at(stop + d0)
+            ctl.lead_idx[i] = kb.EXTERNAL_LEADER
+            ctl.lead_ext[i] = (px, py, 0.0, 0.0, 0.0, 0.0)
