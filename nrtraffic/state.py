@@ -32,6 +32,7 @@ class RunState:
     conflict_areas: dict = field(default_factory=dict)
     itineraries: dict = field(default_factory=dict)  # a corridor trip's route -> its turning movements
     reservations: dict = field(default_factory=dict)  # human driver -> (its reserved crossing, its bounds)
+    mixed: bool = False  # human drivers take part (demand.controlled_share < 1, or a file's other types)
 
     def __post_init__(self):
         if self.life is None:

@@ -253,13 +253,25 @@ def mixed_run(tmp_path_factory):
             reserved[vehicle_id] = asg
         return asg
 
+    from nrtraffic.junction import yielding
+
+    put_back = yielding.restore
+
+    def record_restore(coord, saved):  # (a crossing reserved again for nothing: the one before holds)
+        put_back(coord, saved)
+        for asg in saved[0]:
+            if asg.occupancy is not None:
+                reserved[asg.vehicle_id] = asg
+
     Coordinator.reserve_crossing = record
     Coordinator.advance = record_advance
+    yielding.restore = record_restore
     try:
         res = Engine(sc, out, seed=2, duration_s=300.0).run()
     finally:
         Coordinator.reserve_crossing = original
         Coordinator.advance = advance
+        yielding.restore = put_back
     return res, sc, reserved
 
 
@@ -293,3 +305,14 @@ def test_mixed_run_writes_the_human_bodies(mixed_run):
     doc = json.loads((res.run_dir / "movements.json").read_text())
     assert doc["conflict_areas_human"]
     assert all(a["movement"] in doc["movements"] for a in doc["conflict_areas"])
+
+
+def test_controlled_vehicles_that_gave_way_keep_their_new_plans(mixed_run):
+    """In the half-automated run, controlled vehicles still far from their merging zone gave way
+    to crossings from rest that would otherwise have started late (nrtraffic.junction.yielding):
+    each entered its merging zone when its last plan said."""
+    res, _, _ = mixed_run
+    v = res.vehicles
+    moved = v[(v["driver"] == "automated") & (v["replans"] > 0) & v["t_merge_actual_s"].notna()]
+    assert len(moved) > 5
+    assert ((moved["t_merge_actual_s"] - moved["t_merge_planned_s"]).abs() < 0.3).all()

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 
+from nrtraffic.junction import yielding
 from nrtraffic.junction.build import HUMAN_BODY
 from nrtraffic.lifecycle import HUMAN_DRIVERS, State, VehicleRecord
 from nrtraffic.planning.crossing import CrossingBounds, KraussBounds, human_crossing
@@ -89,6 +90,7 @@ def advance(st, vid: str) -> None:
     new = st.junctions[rec.junction].coord.advance(vid, t_min)
     if new is not None:
         _note(st, vid, new, bounds)
+
 
 
 def standing_in_queue(st, vid: str) -> bool:
@@ -182,10 +184,12 @@ def human_bounds(st, vid: str) -> KraussBounds:
     return KraussBounds(h.accel_mps2, h.sigma, v_lo=v_lo, v_hi=v_max, step_s=st.sc.sumo.step_length_s)
 
 
-def reserve(st, vid: str, bounds: CrossingBounds | KraussBounds):
+def reserve(st, vid: str, bounds: CrossingBounds | KraussBounds, give_way: bool = True) -> None:
     """Reserve the crossing from rest of a vehicle standing where SUMO has it now, within
     ``bounds`` (:meth:`~nrtraffic.planning.coordinator.Coordinator.reserve_crossing`); its record
-    takes the start, the planned merging-zone entry (latest) and its predecessor."""
+    takes the start, the planned merging-zone entry (latest) and its predecessor. Where human
+    drivers take part (``st.mixed``), a start that is far off has the controlled vehicles that can
+    give way to it planned again behind it (``give_way``, :mod:`nrtraffic.junction.yielding`)."""
     rec = st.records[vid]
     mv = st.paths[rec.movement]
     s_cg = st.cg_on_path(vid)
@@ -196,7 +200,8 @@ def reserve(st, vid: str, bounds: CrossingBounds | KraussBounds):
         vid, rec.lane, body(rec), st.t, offsets, merge_w, exit_w, v_exit, start, driven_by_sumo=human,
         platoon_headway_s=PLATOON_HEADWAY_S)
     _note(st, vid, asg, bounds)
-    return asg
+    if give_way and st.mixed:
+        yielding.give_way(st, vid, lambda: reserve(st, vid, bounds, give_way=False))
 
 
 def _windows(st, rec: VehicleRecord, s_cg: float, bounds, v0: float = 0.0):

@@ -646,3 +646,14 @@ def start_behind(prev: Assignment, t0: float, D: float, a: float, v_cap: float, 
     x = spacing - gap  # what it may have covered by each instant [m]
     T = np.array([travel_time(d, a, v_cap) for d in x.tolist()])
     return max(t0, float(np.max(grid - T)))
+
+
+def snapshot(coord: Coordinator) -> tuple:
+    """What :func:`restore` needs to put ``coord``'s reservations back as they are now."""
+    return list(coord._reserved), dict(coord._last_on_lane), dict(coord._last_on_movement), dict(coord._passed)
+
+
+def restore(coord: Coordinator, saved: tuple) -> None:
+    """``coord``'s reservations as :func:`snapshot` found them."""
+    coord._reserved, coord._last_on_lane, coord._last_on_movement, coord._passed = (
+        list(saved[0]), dict(saved[1]), dict(saved[2]), dict(saved[3]))
