@@ -257,10 +257,18 @@ def run_job(spec: dict) -> dict:
 
 def check_resume(jobs: list[Job], force: bool = False) -> None:
     """Refuse to resume into run directories made with another configuration (a different
-    scenario, ``--set``, grid value or duration), unless ``force``: then they are run again."""
+    scenario, ``--set``, grid value or duration), unless ``force``: then they are run again. A run
+    directory to be run again that holds files its run did not write (:func:`foreign_files`) is
+    refused even with ``force``: it is replaced whole."""
     clash = []
     for j in jobs:
         d = Path(j.run_dir)
+        if d.is_dir() and finished(j) is None:
+            mine = foreign_files(d)
+            if mine:
+                shown = ", ".join(mine[:3]) + (f" and {len(mine) - 3} more" if len(mine) > 3 else "")
+                raise SweepError(f"{d} holds {shown}, which its run did not write (files of your own?): the run "
+                                 "there would be replaced whole; move them out of the sweep's folder")
         if (d / "summary.json").is_file() and recorded_fingerprint(d) != j.fingerprint:
             clash.append(d)
     if clash and not force:
@@ -268,6 +276,17 @@ def check_resume(jobs: list[Job], force: bool = False) -> None:
             f"{len(clash)} run director{'y' if len(clash) == 1 else 'ies'} in the output folder "
             f"{'was' if len(clash) == 1 else 'were'} made with a different configuration (or by an older version), "
             f"e.g. {clash[0]}: use another --out, or --force to run them again with this one")
+
+
+def foreign_files(d: Path) -> list[str]:
+    """The files and folders in a sweep's run directory ``d`` that its run did not write (its
+    manifest's ``created``, and the sweep's fingerprint): all of them where it has no run
+    manifest (files of the user's, or a run of a version without manifests)."""
+    from runners.single import MANIFEST, _tree, read_manifest
+
+    m = read_manifest(d)
+    ours = (set(m["created"]) if m is not None else set()) | {MANIFEST, FINGERPRINT}
+    return sorted(p for p in _tree(d) if p not in ours)
 
 
 def remove_stale(out: Path) -> list[Path]:
@@ -1051,7 +1070,7 @@ def check_out(out: Path) -> None:
     sweep recorded in its manifest as written (:func:`record_tables`), so that a sweep's tables and
     report never replace a user's files of the same name."""
     from runners.api import OutputError, usable_path
-    from runners.single import MANIFEST, read_manifest
+    from runners.single import MANIFEST
 
     try:
         usable_path(out)
@@ -1059,7 +1078,7 @@ def check_out(out: Path) -> None:
         raise SweepError(str(exc)) from None
     if not out.is_dir():
         return
-    m = read_manifest(out)
+    m = read_sweep_manifest(out)
     own = set(m["created"]) | {MANIFEST} if m is not None else set()
     foreign = sorted(p.name for p in out.iterdir() if p.name not in own and p.name not in SWEEP_FOLDERS)
     if foreign and not (out / "runs").is_dir():
@@ -1073,15 +1092,30 @@ def check_out(out: Path) -> None:
                          "or choose another folder")
 
 
-def record_tables(out: Path, written: bool) -> None:
-    """The sweep's manifest in ``out`` (``manifest.json``, as a run's: what was there before, what it
-    created): begun before the tables are written (``written`` False; a new one lists the folder's
-    top level as there before), then, once written, listing every top-level name it created.
-    :func:`check_out` lets a resume write only over those."""
-    from runners.single import MANIFEST, _write_json, read_manifest
+def read_sweep_manifest(out: Path) -> dict | None:
+    """``out``'s manifest when it is a sweep's (``"sweep": 1``, and ``preexisting`` and ``created``
+    as a run's; a command that replaces a run never takes it for one), else None."""
+    from runners.single import MANIFEST
 
-    m = read_manifest(out) or {"preexisting": sorted(p.name for p in out.iterdir() if p.name != MANIFEST),
-                               "created": []}
+    try:
+        m = json.loads((Path(out) / MANIFEST).read_text())
+    except (OSError, ValueError):
+        return None
+    if not (isinstance(m, dict) and set(m) == {"sweep", "preexisting", "created"} and m["sweep"] == 1
+            and all(isinstance(m[k], list) and all(isinstance(x, str) for x in m[k]) for k in ("preexisting", "created"))):
+        return None
+    return m
+
+
+def record_tables(out: Path, written: bool) -> None:
+    """The sweep's manifest in ``out`` (``manifest.json``: what was there before, what it created,
+    :func:`read_sweep_manifest`): begun before the tables are written (``written`` False; a new
+    one lists the folder's top level as there before), then, once written, listing every
+    top-level name it created. :func:`check_out` lets a resume write only over those."""
+    from runners.single import MANIFEST, _write_json
+
+    m = read_sweep_manifest(out) or {"sweep": 1, "preexisting": sorted(p.name for p in out.iterdir()
+                                                                        if p.name != MANIFEST), "created": []}
     if written:
         now = {p.name for p in out.iterdir()} - {MANIFEST, MANIFEST + ".tmp"}
         m["created"] = sorted((now - set(m["preexisting"])) | set(m["created"]))

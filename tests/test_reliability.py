@@ -807,6 +807,32 @@ def test_a_sweep_resumes_only_over_tables_it_wrote(tmp_path, capsys):
     assert "notes.txt" in capsys.readouterr().err and (out / "notes.txt").read_text() == "mine"
 
 
+def test_a_sweep_never_replaces_a_run_folder_holding_the_users_files(tmp_path, capsys):
+    """A file of the user's in a sweep's run folder (beside a finished run, or in a folder of the
+    run's name made before the sweep): a resume that would run it again, with ``--force`` or not,
+    is refused by name (exit 2) and the files stay. A replay, even with ``--force``, never takes a
+    sweep's folder for a run's (it removed the sweep's tables)."""
+    flags = ["--seeds", "1", "--duration", "5", "--set", "outputs.warmup_s=0", "--no-progress", "--workers", "1"]
+    out = tmp_path / "study"
+    assert main(["sweep", str(CROSS4), "--out", str(out), *flags]) == 0
+    run = next((out / "runs").glob("*/seed1/nrtraffic"))
+    (run / "notes.txt").write_text("mine")
+    capsys.readouterr()
+    for force in ([], ["--force"]):
+        assert main(["sweep", str(CROSS4), "--out", str(out), *flags, "--set", "controller.alpha=50", *force]) == 2
+        assert "notes.txt, which its run did not write" in capsys.readouterr().err
+        assert (run / "notes.txt").read_text() == "mine"
+    early = tmp_path / "early"
+    made = early / "runs" / run.relative_to(out).parts[1] / "seed1" / "nrtraffic"
+    made.mkdir(parents=True)
+    (made / "vehicles.csv").write_text("mine\n")
+    assert main(["sweep", str(CROSS4), "--out", str(early), *flags]) == 2
+    assert (made / "vehicles.csv").read_text() == "mine\n"
+    tables = sorted(p.name for p in out.iterdir())
+    assert main(["replay", str(run), "--out", str(out), "--force", "--no-progress"]) == 2
+    assert sorted(p.name for p in out.iterdir()) == tables
+
+
 @pytest.mark.parametrize("flags", [["--set", "demand.begin_s=100", "--set", "demand.end_s=10"],
                                    ["--set", "scenario.begin_s=100000"]])
 def test_a_demand_that_gives_the_run_no_vehicle_is_refused(tmp_path, capsys, flags):
