@@ -298,6 +298,16 @@ def _scenario_copy(tmp_path, old=None, new=None, extra=""):
      "--weight-files would have SUMO read a file that the run does not check"),
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--load-state=state.xml"]', "",
      "--load-state=state.xml would have SUMO read a file"),
+    # options that stood in for demand keys (a run of a tenth of its cars, "ok"), that SUMO refused
+    # once started, or that set up an output the run does not write
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--scale", "10"]', "",
+     "--scale: the run sets it itself (demand.scale)"),
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--max-num-vehicles", "0"]', "",
+     "--max-num-vehicles: the run sets it itself"),
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--threads", "0"]', "",
+     "SUMO needs at least one thread"),
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--vehroute-output.exit-times"]', "",
+     "sets up a SUMO output that the run does not write"),
     # an option the run sets itself (SUMO refused it once started), and one that makes SUMO wait for ever
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--time-to-teleport", "-1"]', "",
      "--time-to-teleport: the run sets it itself"),

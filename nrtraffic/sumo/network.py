@@ -309,6 +309,8 @@ RUN_SETS = {
     "time-to-teleport": "-1: no vehicle is teleported", "collision.action": "collisions are recorded",
     "collision.check-junctions": "collisions are recorded", "collision.mingap-factor": "collisions are recorded",
     "no-step-log": "its own progress", "no-warnings": "its own messages", "duration-log.disable": "its own messages",
+    "scale": "demand.scale", "random-depart-offset": "demand.depart_offset_s",
+    "max-num-vehicles": "every vehicle of the demand runs",
 }
 
 
@@ -387,6 +389,14 @@ def check_sumo_args(args: tuple[str, ...]) -> None:
         if n in ("remote-port", "num-clients"):
             raise NetworkError(f"sumo.extra_args: {a}: SUMO would wait for a TraCI client of its own and the run "
                                "would never start; leave it out")
+    threads = [a for a, n in given if n == "threads"]
+    if threads and any(_value_of(args, a) in ("0",) or (_value_of(args, a) or "1").startswith("-") for a in threads):
+        raise NetworkError(f"sumo.extra_args: {threads[0]}: SUMO needs at least one thread; give 1 or more")
+    of_output = [_shown(a, n) for a, n in given if n not in sumo_writing_options()
+                 and any(n.startswith(w + ".") for w in sumo_writing_options())]
+    if of_output:
+        raise NetworkError(f"sumo.extra_args: {', '.join(of_output)} sets up a SUMO output that the run does not "
+                           "write; leave it out")
     writing = [_shown(a, n) for a, n in given if n in sumo_writing_options()]
     if writing:
         raise NetworkError(f"sumo.extra_args: {', '.join(writing)} would write files outside the run folder; "
@@ -396,6 +406,17 @@ def check_sumo_args(args: tuple[str, ...]) -> None:
         raise NetworkError(f"sumo.extra_args: {', '.join(reading)} would have SUMO read a file that the run does not "
                            "check or copy into its folder (a replay of the run could not find it); leave it out: "
                            "the run's inputs are the scenario's network and demand")
+
+
+def _value_of(args: tuple[str, ...], item: str) -> str | None:
+    """The value given with option ``item`` of ``args`` (``--name=value``, ``-xvalue`` or the next
+    item), or None."""
+    if "=" in item:
+        return item.split("=", 1)[1]
+    if not item.startswith("--") and len(item) > 2:
+        return item[2:]
+    k = args.index(item)
+    return args[k + 1] if k + 1 < len(args) else None
 
 
 def edge_lanes(net_path: Path, edges) -> list[tuple[str, str, float]]:
