@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, get_type_hints
 
-from nrtraffic.limits import MAX_DURATION_S, MAX_SEED  # noqa: F401  (re-exported)
+from nrtraffic.limits import MAX_DURATION_S, MAX_SEED, sumo_id_problem  # noqa: F401  (re-exported)
 from nrtraffic.planning.coordinator import CoordinatorSettings
 from nrtraffic.planning.profiles import PlanBounds
 from nrtraffic.vehicle.params import BicycleParams, preset
@@ -411,12 +411,21 @@ class ListedVehicle:
     def validate(self) -> None:
         if not self.id or not self.approach:
             raise ScenarioError("every [[vehicles]] entry needs an id and an approach")
+        why = sumo_id_problem(self.id)
+        if why:
+            raise ScenarioError(f"vehicles: id {self.id!r}: {why}; choose another id")
         for pt in self.speed_profile:
             if not (isinstance(pt, (list, tuple)) and len(pt) == 2 and all(isinstance(v, (int, float)) for v in pt)):
                 raise ScenarioError(f"vehicles.{self.id}.speed_profile must be a list of [t_s, v_mps] pairs")
+            if not (0.0 <= pt[0] <= MAX_DURATION_S and 0.0 <= pt[1] <= 70.0):
+                raise ScenarioError(f"vehicles.{self.id}.speed_profile: [{pt[0]:g}, {pt[1]:g}] is outside [0 to "
+                                    f"{MAX_DURATION_S:g} s, 0 to 70 m/s]: give times and speeds in those ranges")
         ts = [pt[0] for pt in self.speed_profile]
         if ts != sorted(ts):
             raise ScenarioError(f"vehicles.{self.id}.speed_profile times must increase")
+        if self.speed_profile and self.controlled:
+            raise ScenarioError(f"vehicles.{self.id}.speed_profile drives only a vehicle SUMO drives: set "
+                                "controlled = false, or leave the profile out (a controlled vehicle follows its plan)")
 
 
 MIN_STALL_S = 30.0  # the shortest gridlock watchdog (outputs.stall_s) [s]

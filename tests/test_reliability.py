@@ -254,6 +254,16 @@ def _scenario_copy(tmp_path, old=None, new=None, extra=""):
     # a watchdog shorter than a crossing: ordinary waiting stopped the run as a gridlock
     ("trajectory_interval_s = 0.5", "trajectory_interval_s = 0.5\nstall_s = 0.1", "",
      "outputs.stall_s = 0.1 s would take ordinary traffic for a gridlock"),
+    # vehicle ids SUMO refuses once started (one was written unescaped into the route file), and
+    # speed profiles out of range or on a vehicle that never follows one
+    ("", "", '\n[[vehicles]]\nid = "a&b"\napproach = "N_in.straight"\ndepart_s = 1.0\n',
+     "id 'a&b': SUMO takes no '&' in a vehicle id"),
+    ("", "", '\n[[vehicles]]\nid = "a b"\napproach = "N_in.straight"\ndepart_s = 1.0\n',
+     "id 'a b': SUMO takes no ' ' in a vehicle id"),
+    ("", "", '\n[[vehicles]]\nid = "s"\napproach = "N_in.straight"\ncontrolled = false\n'
+     'speed_profile = [[0.0, 5.0], [1.0, -3.0]]\n', "vehicles.s.speed_profile: [1, -3] is outside"),
+    ("", "", '\n[[vehicles]]\nid = "s"\napproach = "N_in.straight"\nspeed_profile = [[0.0, 5.0]]\n',
+     "vehicles.s.speed_profile drives only a vehicle SUMO drives"),
     ("trajectory_interval_s = 0.5", "trajectory_interval_s = 0.25", "", "whole multiple of sumo.step_length_s"),
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--no-such-option", "1"]', "",
      "no option --no-such-option"),

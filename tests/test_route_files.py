@@ -104,6 +104,9 @@ def test_a_route_file_drives_a_corridor_each_vehicle_on_its_whole_route(tmp_path
      "departPos=-5: give the position from the edge's start"),
     ('<vehicle id="x" depart="-5"><route edges="W_J1 J1_J2"/></vehicle>', "depart=-5 is negative"),
     ('<trip id="x" depart="1" from="W_J1" to="J1_J2" departPos="900"/>', "r.rou.xml: <vehicle id='x'>: departPos=900.00 lies beyond its first edge 'W_J1'"),
+    # ids SUMO refuses once started (one with "&amp;" was written back unescaped)
+    ('<vehicle id="a&amp;b" depart="1"><route edges="W_J1 J1_J2"/></vehicle>', "SUMO takes no '&' in a vehicle id"),
+    ('<vehicle id="a b" depart="1"><route edges="W_J1 J1_J2"/></vehicle>', "SUMO takes no ' ' in a vehicle id"),
 ])
 def test_a_route_the_network_cannot_drive_is_refused_before_sumo_starts(tmp_path, body, message):
     d = _corridor(tmp_path, f"<routes>\n    {body}\n</routes>\n")

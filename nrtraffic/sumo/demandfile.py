@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from nrtraffic.limits import sumo_id_problem
+
 
 class DemandFileError(ValueError):
     """The demand file cannot be read or names what the junction does not have."""
@@ -247,6 +249,9 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
         where = f"demand.sumo_routes {label}: <{tag} id={vid!r}>"
         if not vid:
             raise DemandFileError(f"demand.sumo_routes {label}: a <{tag}> without an id")
+        why = sumo_id_problem(vid)
+        if why:
+            raise DemandFileError(f"{where}: {why}; rename it in the file")
         edges = edges_of(el, where)
         legs = crossings(edges, where)
         edges = tuple(edges)
