@@ -334,8 +334,8 @@ def sweep(scenario: str | Path, seeds: Iterable[int] | str, *, grid: Mapping[str
         if "." not in str(k) or not values:
             raise sweep_mod.SweepError(f"grid {k!r}: expected {{'section.key': [value, ...]}}")
         points.append((str(k), [v if isinstance(v, str) else _toml(v) for v in values]))
-    controls = [sweep_mod.NRTRAFFIC] + sweep_mod.parse_baselines(
-        baselines if isinstance(baselines, str) else ",".join(baselines))
+    names = baselines if isinstance(baselines, str) else ",".join(baselines)
+    controls = [sweep_mod.NRTRAFFIC] + sweep_mod.parse_baselines(names if names else None)
     out = _out(out, "sweep")
     sweep_mod.study(Path(scenario), seeds, points, controls, out, duration_s=duration_s,
                     overrides=tuple(settings(overrides)), workers=workers, scheduler=scheduler, force=force,

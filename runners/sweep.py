@@ -146,17 +146,43 @@ def parse_grid(items: list[str]) -> list[tuple[str, list[str]]]:
             raise SweepError(f"--grid {item!r}: expected SECTION.KEY=V1,V2,...")
         if key in dict(grid):
             raise SweepError(f"--grid {key} is given twice")
+        if key in ("scenario.seed", "general.seed"):
+            raise SweepError(f"--grid {key}: a sweep's seeds are --seeds (each run's seed); give them there")
+        same = _same_values(vals)
+        if same:  # (one configuration twice would count its runs as twice the samples)
+            raise SweepError(f"--grid {key}: {same[0]} and {same[1]} are the same value; give each once")
         grid.append((key, vals))
     return grid
 
 
+def _same_values(vals: list[str]) -> tuple[str, str] | None:
+    """Two items of ``vals`` that are one value (``400`` and ``400.0``, or the same text)."""
+    seen: dict = {}
+    for v in vals:
+        try:
+            k = float(v)
+        except ValueError:
+            k = v.strip('"\'')
+        if k in seen:
+            return seen[k], v
+        seen[k] = v
+    return None
+
+
 def parse_baselines(text: str | None) -> list[str]:
-    if not text:
+    """``--baseline A,B``: SUMO's controls to run beside nrtraffic, each once (None: none)."""
+    if text is None:
         return []
     out = [b.strip() for b in text.split(",") if b.strip()]
+    if not out:
+        raise SweepError(f"--baseline {text!r} names no control: give some of {', '.join(BASELINES)}, or leave "
+                         "--baseline out")
     for b in out:
         if b not in BASELINES:
             raise SweepError(f"--baseline {b!r}: expected some of {', '.join(BASELINES)}")
+    twice = sorted(b for b, n in Counter(out).items() if n > 1)
+    if twice:
+        raise SweepError(f"--baseline: {twice[0]} is given twice; give each control once")
     return out
 
 
@@ -1064,6 +1090,9 @@ def seed_figure(df: pd.DataFrame, path: Path) -> None:
 SWEEP_FOLDERS = ("runs", "jobs")
 
 
+WORKERS_PER_CORE = 4  # the most worker processes of a local cluster per core of the machine
+
+
 def check_out(out: Path) -> None:
     """A sweep's ``--out`` (not created here): not a file, nothing in its path that SUMO misreads,
     and either empty or an earlier sweep's: beside ``runs/`` and ``jobs/`` it may hold only what a
@@ -1132,6 +1161,10 @@ def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]
     ``sweep.csv`` as a DataFrame."""
     if scheduler is None and workers < 1:
         raise SweepError(f"--workers {workers}: need at least one worker process")
+    cores = os.cpu_count() or 1
+    if scheduler is None and batch is None and workers > WORKERS_PER_CORE * cores:
+        raise SweepError(f"--workers {workers}: this machine has {cores} cores; a local cluster takes at most "
+                         f"{WORKERS_PER_CORE * cores} workers (each runs one simulation at a time)")
     n = len(seeds) * len(controls) * math.prod(len(v) for _, v in grid)
     if n > MAX_RUNS and not force:
         raise SweepError(f"the sweep has {n} runs, more than {MAX_RUNS}: narrow --seeds or --grid, or --force to "

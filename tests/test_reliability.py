@@ -827,6 +827,24 @@ def test_a_sweep_resumes_only_over_tables_it_wrote(tmp_path, capsys):
     assert "notes.txt" in capsys.readouterr().err and (out / "notes.txt").read_text() == "mine"
 
 
+@pytest.mark.parametrize("flags, message", [
+    (["--grid", "demand.rate_veh_h=400,400.0"], "400 and 400.0 are the same value"),
+    (["--baseline", "traffic_light,traffic_light"], "traffic_light is given twice"),
+    (["--baseline", ""], "names no control"),
+    (["--grid", "scenario.seed=1,2"], "a sweep's seeds are --seeds"),
+    (["--workers", "100000"], "a local cluster takes at most"),
+])
+def test_sweep_flags_that_would_count_a_run_twice_or_do_nothing_are_refused(flags, message, tmp_path, capsys):
+    """The same configuration twice (two runs of one seed counted as two samples), a --baseline
+    of no control, a grid over the seed (every row had the same seed), and a local cluster of
+    100000 workers (it hung): exit 2 before anything runs."""
+    out = tmp_path / "study"
+    assert main(["sweep", str(CROSS4), "--seeds", "1", "--duration", "5", "--no-progress", "--out", str(out),
+                 *flags]) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()
+
+
 def test_a_sweep_never_replaces_a_run_folder_holding_the_users_files(tmp_path, capsys):
     """A file of the user's in a sweep's run folder (beside a finished run, or in a folder of the
     run's name made before the sweep): a resume that would run it again, with ``--force`` or not,
