@@ -92,6 +92,27 @@ def merged(paths: list[Path]) -> Path:
     return out
 
 
+def _flow_size(el) -> float:
+    """How many vehicles a ``<flow>`` makes (``number``, or its rate over ``begin`` to ``end``,
+    SUMO's default end being a day); 0 where a value is not a number (the check of the demand
+    names it)."""
+    try:
+        if el.get("number") is not None:
+            return float(el.get("number"))
+        span = float(el.get("end", "86400")) - float(el.get("begin", "0"))
+        period = el.get("period")
+        if period is not None:
+            if period.startswith("exp(") and period.endswith(")"):  # (SUMO's random arrivals at a rate [1/s])
+                return span * float(period[4:-1])
+            return span / float(period) if float(period) > 0 else 0.0
+        for rate, per_s in (("vehsPerHour", 1 / 3600), ("perHour", 1 / 3600), ("probability", 1.0)):
+            if el.get(rate) is not None:
+                return span * float(el.get(rate)) * per_s
+    except ValueError:
+        pass
+    return 0.0
+
+
 def routed(path: Path, net_path: Path) -> Path:
     """``path``, or where it has trips or flows given by ``from``/``to`` (``via``), the same file with
     each routed by SUMO's ``duarouter`` on the network ``net_path`` (the fastest route at the edges'
@@ -107,13 +128,11 @@ def routed(path: Path, net_path: Path) -> Path:
     if not _unrouted(root):
         return path
     for el in root.iter("flow"):  # (duarouter writes every vehicle of a flow it routes: bounded first)
-        try:
-            n = float(el.get("number", "0"))
-        except ValueError:
-            continue
+        n = _flow_size(el)
         if n > MAX_FLOW_VEHICLES:
-            raise DemandFileError(f"demand.sumo_routes {path.name}: <flow id={el.get('id')!r}> has number={n:g}, more "
-                                  f"than the {MAX_FLOW_VEHICLES} vehicles one flow may have")
+            raise DemandFileError(f"demand.sumo_routes {path.name}: <flow id={el.get('id')!r}> makes {n:g} vehicles, "
+                                  f"more than the {MAX_FLOW_VEHICLES} one flow may have: give it an end (or a "
+                                  "number) that the study needs")
     st = path.stat()
     key = (str(path.resolve()), st.st_mtime_ns, st.st_size, str(net_path.resolve()), net_path.stat().st_mtime_ns)
     if key in _ROUTED and _ROUTED[key].is_file():
