@@ -1,4 +1,5 @@
-"""SIGTERM and Ctrl-C (SIGINT) for the ``nrtraffic`` command, from its first instruction to its last.
+"""SIGTERM, Ctrl-C (SIGINT) and a closed terminal (SIGHUP) for the ``nrtraffic`` command, from its
+first instruction to its last. SIGHUP is handled as SIGTERM is.
 
 A signal must never end the process without a run directory that says what happened. Until a run
 has written its first ``summary.json`` (``"status": "running"``) nothing can be kept, so a signal
@@ -34,10 +35,14 @@ _received: int | None = None  # the signal that interrupted the run (armed), for
 _finished = False  # the command has its exit status: a signal is noted, never raised
 
 
+# the signals handled: termination, Ctrl-C, and the terminal closing (SIGHUP, where there is one)
+SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGINT", "SIGHUP") if hasattr(signal, name))
+
+
 def _interrupt(signum: int) -> KeyboardInterrupt:
-    if signum == signal.SIGTERM:
-        return Terminated("terminated by SIGTERM")
-    return KeyboardInterrupt("interrupted (SIGINT)")
+    if signum == signal.SIGINT:
+        return KeyboardInterrupt("interrupted (SIGINT)")
+    return Terminated(f"terminated by {signal.Signals(signum).name}")
 
 
 def _handler(signum, frame) -> None:
@@ -59,7 +64,7 @@ def install() -> None:
     if threading.current_thread() is not threading.main_thread():
         return
     _armed, _pending, _received, _finished = False, None, None, False
-    for sig in (signal.SIGTERM, signal.SIGINT):
+    for sig in SIGNALS:
         _installed[sig] = signal.signal(sig, _handler)
 
 

@@ -118,7 +118,7 @@ runpy.run_module("runners.cli", run_name="__main__", alter_sys=True)
 
 
 @pytest.mark.parametrize("at", ["nrtraffic", "runners.api", "exit", "teardown"])
-@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM", "SIGHUP"])
 def test_a_signal_while_the_command_starts_or_exits_is_handled(at, sig, tmp_path):
     """The command's handlers were installed only after it had imported nrtraffic and the API's
     helpers, and taken off before the interpreter exited: a signal then was a KeyboardInterrupt
