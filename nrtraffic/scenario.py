@@ -852,6 +852,9 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
         if sc.coordinator.conflict_model != "conflict_points":
             raise ScenarioError('demand.controlled_share < 1 needs coordinator.conflict_model = "conflict_points" '
                                 "(human drivers' crossings are reserved per conflict area)")
+    if sc.network_path.is_dir():
+        raise ScenarioError(f"scenario.network = {sc.general.network!r} is a folder, not a network file: name the "
+                            ".net.xml file in it")
     if not sc.network_path.is_file():
         raise ScenarioError(f"network file not found: {sc.network_path} (scenario.network = {sc.general.network!r})")
     if sc.controller.plant_step_s > sc.sumo.step_length_s:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
 import threading
 from collections.abc import Iterable, Mapping
@@ -31,8 +32,13 @@ class OutputError(ValueError):
 
 
 def usable_path(path: Path) -> None:
-    """Refuse (exit 2) an output folder that is a file, or whose path SUMO would misread."""
+    """Refuse (exit 2) an output folder whose path is too long, that is a file, or whose path SUMO
+    would misread."""
     path = Path(path)
+    long = [p for p in path.absolute().parts if len(os.fsencode(p)) > 255]
+    if long or len(os.fsencode(str(path.absolute()))) > 4000:
+        raise OutputError(f"--out {str(path)[:60]}...: a name in the path is longer than the file system takes "
+                          "(255 bytes a name, about 4000 the whole path); choose a shorter one")
     if path.exists() and not path.is_dir():
         raise OutputError(f"--out {path}: exists and is not a folder")
     odd = sorted({c for c in str(path.absolute()) if c in SUMO_PATH_CHARS})

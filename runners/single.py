@@ -49,8 +49,12 @@ def check_demand(sc: scenario_mod.Scenario, seed: int | None, duration_s: float 
             where = (f"demand.sumo_routes has no departure from scenario.begin_s = {sc.general.begin_s:g} s on"
                      if d.sumo_routes else
                      f"demand.begin_s = {d.begin_s:g} s, demand.end_s = {d.end_s:g} s, its rates and counts give none")
+            if d.sumo_routes and d.scale != 1.0:
+                where += f" once demand.scale = {d.scale:g} has scaled it"
             if departures:
                 where = f"its first departure is at {min(v[2] for v in departures):g} s, after the run's {d_run:g} s"
+                if d.sumo_routes and d.depart_offset_s:
+                    where += f" (demand.depart_offset_s = {d.depart_offset_s:g} s shifts each departure)"
             raise scenario_mod.ScenarioError(f"the demand gives the run no vehicle ({where}): check the demand, "
                                              "and the run's length (--duration, scenario.duration_s)")
         _check_depart_speeds(sc, demand, departures)

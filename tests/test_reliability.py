@@ -264,6 +264,7 @@ def _scenario_copy(tmp_path, old=None, new=None, extra=""):
      'speed_profile = [[0.0, 5.0], [1.0, -3.0]]\n', "vehicles.s.speed_profile: [1, -3] is outside"),
     ("", "", '\n[[vehicles]]\nid = "s"\napproach = "N_in.straight"\nspeed_profile = [[0.0, 5.0]]\n',
      "vehicles.s.speed_profile drives only a vehicle SUMO drives"),
+    ('network = "net.net.xml"', 'network = "."', "", "is a folder, not a network file"),
     ("trajectory_interval_s = 0.5", "trajectory_interval_s = 0.25", "", "whole multiple of sumo.step_length_s"),
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--no-such-option", "1"]', "",
      "no option --no-such-option"),
@@ -778,6 +779,14 @@ def test_an_empty_out_is_refused_not_taken_for_the_working_folder(command, tmp_p
         main([*command, "--out", "", "--duration", "5", "--no-progress"])
     assert exc.value.code == 2 and "--out: is empty: name a folder" in capsys.readouterr().err
     assert not any(tmp_path.iterdir())
+
+
+def test_an_out_name_too_long_for_the_file_system_is_refused_before_anything_runs(tmp_path, capsys):
+    """A 300-character folder name failed once SUMO started, "File name too long", exit 1."""
+    out = tmp_path / ("x" * 300)
+    assert main(["run", str(CROSS4), "--out", str(out), "--duration", "5", "--set", "outputs.warmup_s=0",
+                 "--no-progress"]) == 2
+    assert "longer than the file system takes" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("name", ["with,comma", "col:on", "q'uote"])
