@@ -331,6 +331,8 @@ def _scenario_copy(tmp_path, old=None, new=None, extra=""):
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--mesosim"]', "",
      "--mesosim: SUMO's mesoscopic model has no lanes"),
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--version"]', "", "--version: it prints SUMO's"),
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--no-internal-links"]', "",
+     "--no-internal-links: the controlled vehicles are driven along the junction's internal lanes"),
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = [""]', "", "sumo.extra_args: an empty item"),
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["foo.sumocfg"]', "",
      "'foo.sumocfg' is not an option"),

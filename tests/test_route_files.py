@@ -107,6 +107,8 @@ def test_a_route_file_drives_a_corridor_each_vehicle_on_its_whole_route(tmp_path
     # ids SUMO refuses once started (one with "&amp;" was written back unescaped)
     ('<vehicle id="a&amp;b" depart="1"><route edges="W_J1 J1_J2"/></vehicle>', "SUMO takes no '&' in a vehicle id"),
     ('<vehicle id="a b" depart="1"><route edges="W_J1 J1_J2"/></vehicle>', "SUMO takes no ' ' in a vehicle id"),
+    ('<vehicle id="x" depart="triggered"><route edges="W_J1 J1_J2"/></vehicle>',
+     "depart='triggered': the run takes departures in seconds only"),
     # a flow of 10^12 vehicles to be routed (duarouter ran for minutes and could not be stopped)
     ('<flow id="f" begin="0" end="1e9" period="0.001" from="W_J1" to="J1_J2"/>', "makes 1e+12 vehicles"),
 ])

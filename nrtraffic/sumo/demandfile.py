@@ -42,6 +42,9 @@ def _num(el, key: str, where: str, default=None) -> float:
     try:
         x = float(v)
     except ValueError:
+        if key == "depart" and v in ("triggered", "containerTriggered", "now", "split", "begin"):
+            raise DemandFileError(f"{where}: depart={v!r}: the run takes departures in seconds only; give the "
+                                  "time") from None
         raise DemandFileError(f"{where}: {key}={v!r} is not a number") from None
     if not math.isfinite(x):
         raise DemandFileError(f"{where}: {key}={v!r} is not finite")

@@ -209,6 +209,7 @@ NOT_FOR_A_RUN = {
     "mesosim": "SUMO's mesoscopic model has no lanes or positions to place a controlled car on",
     "help": "it prints SUMO's help instead of running", "version": "it prints SUMO's version instead of running",
     "print-options": "it prints SUMO's options instead of running",
+    "no-internal-links": "the controlled vehicles are driven along the junction's internal lanes",
     "output.format": "the run reads SUMO's outputs as XML", "human-readable-time": "the run reads SUMO's times "
     "as seconds",
 }
