@@ -29,6 +29,7 @@ import logging
 import json
 import math
 import os
+import re
 import shutil
 import sys
 import threading
@@ -483,9 +484,9 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
                 except (OSError, TimeoutError, ValueError) as exc:
                     raise SweepError(f"--scheduler {scheduler}: cannot reach it within {SCHEDULER_TIMEOUT_S:g} s "
                                      f"({type(exc).__name__}): start it, or check the address") from None
-                except Exception as exc:  # noqa: BLE001 - something answered, not a Dask scheduler
-                    raise SweepError(f"--scheduler {scheduler}: what answers there is not a Dask scheduler "
-                                     f"({type(exc).__name__}): check the address and port") from None
+                except Exception as exc:  # noqa: BLE001 - no Dask scheduler took the connection
+                    raise SweepError(f"--scheduler {scheduler}: no Dask scheduler answers there "
+                                     f"({type(exc).__name__}): check the address and port, and that it runs") from None
             elif batch is not None:
                 from runners.clusters import make_cluster
 
@@ -1090,6 +1091,8 @@ def seed_figure(df: pd.DataFrame, path: Path) -> None:
 SWEEP_FOLDERS = ("runs", "jobs")
 
 
+# a Dask scheduler's address: [protocol://]host:port
+SCHEDULER_ADDRESS = re.compile(r"^((tcp|tls|ucx|ws|wss)://)?(\[[0-9a-fA-F:]+\]|[\w.-]+):\d{1,5}$")
 WORKERS_PER_CORE = 4  # the most worker processes of a local cluster per core of the machine
 
 
@@ -1161,6 +1164,8 @@ def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]
     ``sweep.csv`` as a DataFrame."""
     if scheduler is None and workers < 1:
         raise SweepError(f"--workers {workers}: need at least one worker process")
+    if scheduler is not None and not SCHEDULER_ADDRESS.match(scheduler):
+        raise SweepError(f"--scheduler {scheduler!r}: expected a Dask scheduler's address, e.g. tcp://10.0.0.5:8786")
     cores = os.cpu_count() or 1
     if scheduler is None and batch is None and workers > WORKERS_PER_CORE * cores:
         raise SweepError(f"--workers {workers}: this machine has {cores} cores; a local cluster takes at most "

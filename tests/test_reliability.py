@@ -650,6 +650,10 @@ def test_a_sweep_too_large_or_with_an_unreachable_scheduler_is_refused_in_one_li
     err = capsys.readouterr().err
     assert "cannot reach it" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "b").exists()  # (refused: nothing written)
+    # not an address at all: refused at once (it waited for a connection, then "cannot reach it")
+    assert main(["sweep", str(CROSS4), "--seeds", "1", "--scheduler", "nonsense", "--out", str(tmp_path / "b"),
+                 "--no-progress"]) == 2
+    assert "expected a Dask scheduler's address" in capsys.readouterr().err
 
 
 def test_a_scheduler_address_where_something_else_answers_is_refused_in_one_line(tmp_path, capsys):
