@@ -325,7 +325,7 @@ def arterial_series(run_dir: Path, source: str | None = None) -> tuple[dict[str,
     out = {}
     for name, art in arts.items():
         g = traj[traj["name"].isin({mv for mv, _ in art.lane_offset.values()})]
-        s = g["approach"].map(art.approaches) + g["s_m"]
+        s = g["approach"].map(art.approaches).astype(float) + g["s_m"]  # (float: a direction no one drove)
         out[name] = _frame(list(zip(g["vehicle_id"], g["segment"].astype(int), g["t"], s, g["movement"])),
                            drivers).assign(movement="")
     return out, arts

@@ -312,3 +312,15 @@ def test_demand_scale_keeps_copies_or_leaves_out_a_route_files_vehicles_as_sumos
     assert set(half) < set(base) and abs(len(half) - 0.5 * n) < 4 * (0.25 * n) ** 0.5
     with pytest.raises(scenario.ScenarioError, match="demand.scale scales the vehicles of demand.sumo_routes"):
         scenario.load(SCENARIOS / "tee3" / "scenario.toml", ["demand.scale=1.5"])
+
+
+def test_stops_in_a_route_file_are_left_out_with_a_warning(tmp_path):
+    """<stop> elements were dropped from the run's routes without a word. (A corridor with a
+    direction that no vehicle drove failed its report: its arterial series added text to numbers.)"""
+    d = _corridor(tmp_path, '<routes>\n    <vehicle id="x" depart="1"><route edges="W_J1 J1_J2"/>'
+                            '<stop lane="J1_J2_0" endPos="50" duration="5"/></vehicle>\n</routes>\n')
+    out = tmp_path / "run"
+    r = _run(["run", d / "scenario.toml", "--duration", "30", "--set", "outputs.warmup_s=0", "--out", out])
+    assert r.returncode == 0, r.stderr
+    warnings = json.loads((out / "summary.json").read_text())["warnings"]
+    assert any("its 1 <stop> elements are left out" in w for w in warnings), warnings
