@@ -11,7 +11,7 @@ def sumo_id_problem(vid: str) -> str | None:
     """Why SUMO would refuse ``vid`` as a vehicle id (None: it takes it)."""
     if not vid:
         return "it is empty"
-    bad = sorted({c for c in vid if c in SUMO_ID_FORBIDDEN})
+    bad = sorted({c for c in vid if c in SUMO_ID_FORBIDDEN or ord(c) < 32 or ord(c) == 127})
     if bad:
         return "SUMO takes no " + " or ".join(repr(c) for c in bad) + " in a vehicle id"
     return None

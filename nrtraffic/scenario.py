@@ -639,7 +639,7 @@ RANGES: dict[str, dict[str, tuple[float, float]]] = {
                "controlled_share": (0.0, 1.0), "depart_offset_s": (0.0, 3600.0), "scale": (0.0, 100.0)},
     "demand.flows": {k: (0.0, 20000.0) for k in ("left", "straight", "right", "u_turn")},
     "demand.intervals": {"begin_s": (0.0, 366 * _DAY_S), "end_s": (0.0, 366 * _DAY_S), "scale": (0.0, 100.0)},
-    "human": {"accel_mps2": (0.1, 10.0), "decel_mps2": (0.1, 15.0), "sigma": (0.0, 1.0), "tau_s": (0.01, 10.0),
+    "human": {"accel_mps2": (0.1, 10.0), "decel_mps2": (0.1, 15.0), "sigma": (0.0, 0.99), "tau_s": (0.01, 10.0),
               "min_gap_m": (0.0, 20.0), "speed_dev": (0.0, 1.0), "conflict_margin_s": (0.0, 60.0),
               "queue_reach_m": (0.0, 1000.0)},
     "junction": {"lateral_clearance_m": (0.0, 5.0)},

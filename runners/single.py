@@ -203,9 +203,18 @@ def read_manifest(out: Path) -> dict | None:
 
 
 def run_file_names(sc: scenario_mod.Scenario) -> list[str]:
-    """The files (and the ``sumo`` folder) a run of ``sc`` writes into its directory, by name."""
-    return [*RUN_FILES, "sumo", "sumo/routes.rou.xml", "sumo/run.sumocfg", "sumo/queues.add.xml",
-            f"sumo/{sc.network_path.name}", *(name for _, name in route_copies(sc))]
+    """The files (and the ``sumo`` folder) a run of ``sc`` may write into its directory while it
+    simulates, by name: SUMO's outputs only where ``[outputs]`` asks for them. (Its figures and
+    report come at its end, and the manifest lists them once written.)"""
+    o = sc.outputs
+    skip = set(REPORT_FILES) | ({"fcd.xml"} if not o.sumo_fcd else set()) | (
+        {"tripinfo.xml"} if not o.sumo_tripinfo else set()) | ({"collisions.xml"} if not o.sumo_collisions else set())
+    return [*(n for n in RUN_FILES if n not in skip), "sumo", "sumo/routes.rou.xml", "sumo/run.sumocfg",
+            "sumo/queues.add.xml", f"sumo/{sc.network_path.name}", *(name for _, name in route_copies(sc))]
+
+
+# what a run writes at its end, only where its data has them: its figures and report
+REPORT_FILES = ("movements.png", "delays.png", "queues.png", "time_space.png", "arterial.png", "report.html")
 
 
 def begin_manifest(out: Path, planned=()) -> None:
@@ -245,8 +254,13 @@ def claim_run_dir(out: Path, sc: scenario_mod.Scenario, seed: int | None, durati
     (ValueError) unless ``force``; then what the earlier run created there (its manifest,
     :data:`MANIFEST`) is removed first, so that nothing of it stays beside the new one, and nothing
     else is: a non-empty folder without a manifest (the user's own files, or a run of an earlier
-    version) is refused even with ``force``."""
+    version) is refused even with ``force``. A folder in a sweep's folder is the sweep's, and refused
+    (:func:`in_a_sweep`)."""
     out = Path(out)
+    owner = in_a_sweep(out)
+    if owner is not None:
+        raise ValueError(f"--out {out} lies in the sweep folder {owner}: its run folders are the sweep's own (its "
+                         "tables and resumes read them); choose a folder outside it")
     if not out.is_dir() or not any(out.iterdir()):
         return
     same = False
@@ -267,11 +281,21 @@ def claim_run_dir(out: Path, sc: scenario_mod.Scenario, seed: int | None, durati
                          "this one yourself")
     # what the new run writes must not meet a file that no earlier run there created (the user's)
     ours = set(m["created"])
-    clash = sorted(n for n in run_file_names(sc) if n != "sumo" and (out / n).exists() and n not in ours)
+    # (every name a run may write or read: a stray fcd.xml would be read for its figures)
+    clash = sorted(n for n in (*RUN_FILES, *run_file_names(sc)) if n != "sumo" and (out / n).exists()
+                   and n not in ours)
     if clash:
         raise ValueError(f"--out {out} holds {', '.join(clash)}, which no earlier run there created (files of your "
                          "own?): a run would write over them; choose another folder")
     remove_run_files(out, keep=sc.network_path)
+
+
+def in_a_sweep(path: Path) -> Path | None:
+    """The sweep folder (one with a sweep's manifest) that ``path`` is, or lies in; None."""
+    from runners.sweep import read_sweep_manifest
+
+    p = Path(path).absolute()
+    return next((q for q in (p, *p.parents) if read_sweep_manifest(q) is not None), None)
 
 
 def remove_run_files(out: Path, keep: Path | None = None) -> None:

@@ -1108,6 +1108,11 @@ def check_out(out: Path) -> None:
         usable_path(out)
     except OutputError as exc:
         raise SweepError(str(exc)) from None
+    from runners.single import in_a_sweep
+
+    owner = in_a_sweep(out.absolute().parent)
+    if owner is not None:
+        raise SweepError(f"--out {out} lies in the sweep folder {owner}: choose a folder outside it")
     if not out.is_dir():
         return
     m = read_sweep_manifest(out)

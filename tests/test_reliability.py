@@ -260,6 +260,8 @@ def _scenario_copy(tmp_path, old=None, new=None, extra=""):
      "id 'a&b': SUMO takes no '&' in a vehicle id"),
     ("", "", '\n[[vehicles]]\nid = "a b"\napproach = "N_in.straight"\ndepart_s = 1.0\n',
      "id 'a b': SUMO takes no ' ' in a vehicle id"),
+    ("", "", '\n[[vehicles]]\nid = "h\\u0001"\napproach = "N_in.straight"\ndepart_s = 1.0\n',
+     "SUMO takes no '\\x01' in a vehicle id"),
     ("", "", '\n[[vehicles]]\nid = "s"\napproach = "N_in.straight"\ncontrolled = false\n'
      'speed_profile = [[0.0, 5.0], [1.0, -3.0]]\n', "vehicles.s.speed_profile: [1, -3] is outside"),
     ("", "", '\n[[vehicles]]\nid = "s"\napproach = "N_in.straight"\nspeed_profile = [[0.0, 5.0]]\n',
@@ -505,6 +507,12 @@ _ROUTE_CASES = {
     "malformed": ('<flow id="x" from="W_in"', "cannot be read as XML"),
     "huge_flow": ('<flow id="x" from="W_in" to="E_out" begin="0" end="100" number="1000000000"/>',
                   "more than the 1000000 vehicles one flow may have"),
+    # a flow by period with no end, in an open-ended run (--duration 0 in the test): terabytes of times
+    "huge_flow_open": ('<flow id="x" route="r" begin="0" end="1e9" period="0.001"/><route id="r" edges="W_in E_out"/>',
+                       "makes more than the 1000000 vehicles one flow may have in the run"),
+    # a flow by period with no end, in an open-ended run (--duration 0): terabytes of departure times
+    "huge_flow_open": ('<flow id="x" route="r" begin="0" end="1e9" period="0.001"/><route id="r" edges="W_in E_out"/>',
+                       "makes more than the 1000000 vehicles one flow may have in the run"),
     "huge_flow_route": ('<flow id="x" route="r" begin="0" end="100" number="1000000000"/><route id="r" edges="W_in E_out"/>',
                         "number=1000000000 is more than the 1000000 vehicles one flow may have"),
     "unknown_edges": ('<trip id="x" depart="1" from="W_in" to="Nowhere_out"/>', "The edge 'Nowhere_out' within the route for trip 'x' is not known"),
@@ -521,7 +529,8 @@ def test_a_bad_route_file_is_refused_before_sumo_starts(case, tmp_path, capsys):
     d = copy_scenario("tee3", tmp_path / "tee3")
     (d / "flows.rou.xml").write_text(f"<routes>\n{body}\n</routes>\n")
     out = tmp_path / "o"
-    assert main(["run", str(d / "routes.toml"), "--out", str(out), "--duration", "20", "--no-progress"]) == 2
+    duration = "0" if case == "huge_flow_open" else "20"
+    assert main(["run", str(d / "routes.toml"), "--out", str(out), "--duration", duration, "--no-progress"]) == 2
     assert message in capsys.readouterr().err
     assert not out.exists()
 
@@ -884,6 +893,17 @@ def test_a_sweep_never_replaces_a_run_folder_holding_the_users_files(tmp_path, c
     tables = sorted(p.name for p in out.iterdir())
     assert main(["replay", str(run), "--out", str(out), "--force", "--no-progress"]) == 2
     assert sorted(p.name for p in out.iterdir()) == tables
+    # nor a run folder in it, for a replay, a run or another sweep (it replaced the sweep's run)
+    (run / "notes.txt").unlink()
+    recorded = (run / "summary.json").read_text()
+    capsys.readouterr()
+    assert main(["replay", str(run), "--out", str(run.parent / "other"), "--force", "--no-progress"]) == 2
+    assert main(["run", str(CROSS4), "--out", str(run), "--force", "--duration", "5", "--set", "outputs.warmup_s=0",
+                 "--no-progress"]) == 2
+    assert "lies in the sweep folder" in capsys.readouterr().err
+    assert main(["sweep", str(CROSS4), "--out", str(out / "runs" / "inner"), *flags]) == 2
+    assert "lies in the sweep folder" in capsys.readouterr().err
+    assert (run / "summary.json").read_text() == recorded and not (out / "runs" / "inner").exists()
 
 
 @pytest.mark.parametrize("flags", [["--set", "demand.begin_s=100", "--set", "demand.end_s=10"],
@@ -1047,6 +1067,11 @@ def test_a_run_killed_outright_can_be_replaced_with_force(tmp_path):
         proc.send_signal(signal.SIGKILL)
         proc.wait()
     assert json.loads((out / "summary.json").read_text())["status"] == "running"
+    # its manifest names only what such a run writes while it simulates: no fcd.xml (not asked
+    # for), no figure or report (they come at the end, and are listed once written)
+    planned = set(json.loads((out / "manifest.json").read_text())["created"])
+    assert {"summary.json", "vehicles.csv", "tripinfo.xml"} <= planned
+    assert not planned & {"fcd.xml", "arterial.png", "delays.png", "report.html"}
     (out / "notes.txt").write_text("mine")
     assert main(["run", str(CROSS4), "--out", str(out), "--no-progress", "--duration", "4", "--force",
                  "--set", "outputs.warmup_s=0"]) == 0

@@ -95,14 +95,14 @@ def merged(paths: list[Path]) -> Path:
     return out
 
 
-def _flow_size(el) -> float:
-    """How many vehicles a ``<flow>`` makes (``number``, or its rate over ``begin`` to ``end``,
-    SUMO's default end being a day); 0 where a value is not a number (the check of the demand
-    names it)."""
+def _flow_size(el, end: float | None = None) -> float:
+    """How many vehicles a ``<flow>`` makes (``number``, or its rate over ``begin`` to ``end``: its
+    own, SUMO's default of a day, or ``end`` [s] where given); 0 where a value is not a number (the
+    check of the demand names it)."""
     try:
         if el.get("number") is not None:
             return float(el.get("number"))
-        span = float(el.get("end", "86400")) - float(el.get("begin", "0"))
+        span = (float(el.get("end", "86400")) if end is None else end) - float(el.get("begin", "0"))
         period = el.get("period")
         if period is not None:
             if period.startswith("exp(") and period.endswith(")"):  # (SUMO's random arrivals at a rate [1/s])
@@ -134,8 +134,8 @@ def routed(path: Path, net_path: Path) -> Path:
         n = _flow_size(el)
         if n > MAX_FLOW_VEHICLES:
             raise DemandFileError(f"demand.sumo_routes {path.name}: <flow id={el.get('id')!r}> makes {n:g} vehicles, "
-                                  f"more than the {MAX_FLOW_VEHICLES} one flow may have: give it an end (or a "
-                                  "number) that the study needs")
+                                  f"more than the {MAX_FLOW_VEHICLES} vehicles one flow may have: give it an end "
+                                  "(or a number) that the study needs")
     st = path.stat()
     key = (str(path.resolve()), st.st_mtime_ns, st.st_size, str(net_path.resolve()), net_path.stat().st_mtime_ns)
     if key in _ROUTED and _ROUTED[key].is_file():
@@ -287,6 +287,9 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
             continue
         begin = _num(el, "begin", where, 0.0)
         end = min(_num(el, "end", where, math.inf), end_s)
+        if el.get("number") is None and _flow_size(el, end if math.isfinite(end) else None) > MAX_FLOW_VEHICLES:
+            raise DemandFileError(f"{where}: makes more than the {MAX_FLOW_VEHICLES} vehicles one flow may have "
+                                  "in the run: give it an end (or a number) that the study needs")
         times: list[float] = []
         if el.get("number") is not None and el.get("period") is None and el.get("vehsPerHour") is None:
             n = int(_num(el, "number", where))
