@@ -9,6 +9,7 @@ precision:
 - ``summary.json``: every number except those of the wall clock (``wall_time_s``,
   ``real_time_factor``, ``wall_time_breakdown_s``) and the versions;
 - ``vehicles.csv``: the same vehicles; every number of every vehicle, and the text columns equal;
+- SUMO's ``tripinfo.xml`` and ``collisions.xml``: the same trips and collisions, attribute by attribute;
 - ``trajectories.parquet``: the same log instants per vehicle; every number at every instant.
 
 NaN equals NaN (a figure that does not apply in both).
@@ -170,7 +171,40 @@ def compare_runs(recorded: Path, replayed: Path, rtol: float = RTOL, atol: float
     elif r_rec.is_file():  # (the demand SUMO was given: rebuilt from the configuration)
         diffs += _compare_frames("sumo/routes.rou.xml", _departures(r_rec), _departures(r_new), ["id"], rtol, atol,
                                  limit)
+    sumo_outputs = (("tripinfo.xml", "tripinfo", ["id"]),
+                    ("collisions.xml", "collision", ["time", "collider", "victim", "type"]))
+    for name, tag, keys in sumo_outputs:
+        x_rec, x_new = recorded / name, replayed / name
+        if x_rec.is_file() != x_new.is_file():
+            diffs.append(Difference(name, "file", x_rec.is_file(), x_new.is_file()))
+        elif x_rec.is_file():  # (SUMO's own outputs: its trips, its collisions)
+            a, b = _elements(x_rec, tag), _elements(x_new, tag)
+            if len(a) != len(b):
+                diffs.append(Difference(name, f"<{tag}> elements", len(a), len(b)))
+            elif len(a):
+                diffs += _compare_frames(name, a, b, [k for k in keys if k in a.columns and k in b.columns], rtol,
+                                         atol, limit)
     return diffs
+
+
+def _elements(path: Path, tag: str) -> pd.DataFrame:
+    """The attributes of every ``<tag>`` of a SUMO output file, a row each (numbers as numbers); a
+    file cut short (a run stopped mid-write) up to its last whole element."""
+    import xml.etree.ElementTree as ET
+
+    rows = []
+    try:
+        for _, el in ET.iterparse(path):
+            if el.tag == tag:
+                rows.append(dict(el.attrib))
+    except ET.ParseError:
+        pass
+    df = pd.DataFrame(rows)
+    for c in df.columns:
+        num = pd.to_numeric(df[c], errors="coerce")
+        if num.notna().all():
+            df[c] = num
+    return df
 
 
 def _departures(path: Path) -> pd.DataFrame:

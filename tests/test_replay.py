@@ -153,10 +153,13 @@ def test_a_recorded_table_whose_rows_repeat_their_keys_differs_rather_than_faili
 @pytest.mark.parametrize("edit, where", [
     ("movements", "movements.csv"),
     ("routes", "sumo/routes.rou.xml"),
+    ("collision", "collisions.xml"),
+    ("trip", "tripinfo.xml"),
 ])
 def test_an_edited_movement_table_or_route_file_differs(tmp_path, capsys, edit, where):
-    """The recorded movements.csv and the route file SUMO was given are compared too: an edited
-    count, or a vehicle left out of sumo/routes.rou.xml, "differs" (both said "matches")."""
+    """The recorded movements.csv, the route file SUMO was given and SUMO's own outputs are
+    compared too: an edited count, a vehicle left out of sumo/routes.rou.xml, a made-up collision
+    in collisions.xml or an edited trip duration in tripinfo.xml "differs" (all said "matches")."""
     import re
 
     run = tmp_path / "run"
@@ -165,9 +168,20 @@ def test_an_edited_movement_table_or_route_file_differs(tmp_path, capsys, edit, 
         m = pd.read_csv(run / "movements.csv")
         m.loc[0, "vehicles"] = int(m.loc[0, "vehicles"]) + 90
         m.to_csv(run / "movements.csv", index=False)
-    else:
+    elif edit == "routes":
         text = (run / "sumo" / "routes.rou.xml").read_text()
         first = re.search(r"\s*<vehicle [^>]*?(/>|>.*?</vehicle>)", text, re.S)
         (run / "sumo" / "routes.rou.xml").write_text(text[:first.start()] + text[first.end():])
+    elif edit == "collision":
+        text = (run / "collisions.xml").read_text()
+        end = text.rindex("</collisions>")
+        (run / "collisions.xml").write_text(text[:end] + '    <collision time="30.00" type="collision" lane="N_in_0" '
+                                            'pos="100.00" collider="a" victim="b" colliderType="t" victimType="t" '
+                                            'colliderSpeed="5.00" victimSpeed="0.00"/>\n' + text[end:])
+    else:  # (the golden run's cars are all still on their way at its end: a made-up finished trip)
+        text = (run / "tripinfo.xml").read_text()
+        end = text.rindex("</tripinfos>")
+        (run / "tripinfo.xml").write_text(text[:end] + '    <tripinfo id="made_up" depart="1.00" arrival="40.00" '
+                                          'duration="39.00" timeLoss="3.00"/>\n' + text[end:])
     assert main(["replay", str(run), "--out", str(tmp_path / "again"), "--no-progress"]) == 1
     assert where in capsys.readouterr().out
