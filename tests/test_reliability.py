@@ -325,6 +325,7 @@ def _scenario_copy(tmp_path, old=None, new=None, extra=""):
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--time-to-teleport", "-1"]', "",
      "--time-to-teleport: the run sets it itself"),
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--seed", "5"]', "", "--seed: the run sets it itself"),
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--random"]', "", "--random: the run sets it itself"),
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--remote-port", "9999"]', "",
      "SUMO would wait for a TraCI client of its own"),
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--device.toc.probability", "1"]', "",
