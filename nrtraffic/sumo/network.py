@@ -306,7 +306,8 @@ def sumo_short_options() -> dict[str, str]:
 RUN_SETS = {
     "net-file": "scenario.network", "route-files": "the run's demand", "additional-files": "its detectors",
     "configuration-file": "scenario.sumocfg is read by nrtraffic", "step-length": "sumo.step_length_s",
-    "seed": "--seed or scenario.seed", "random": "--seed or scenario.seed: a run is reproducible from its seed", "lateral-resolution": "sumo.lateral_resolution_m",
+    "seed": "--seed or scenario.seed", "random": "--seed or scenario.seed: a run is reproducible from its seed",
+    "lateral-resolution": "sumo.lateral_resolution_m",
     "time-to-teleport": "-1: no vehicle is teleported", "collision.action": "collisions are recorded",
     "collision.check-junctions": "collisions are recorded", "collision.mingap-factor": "collisions are recorded",
     "no-step-log": "its own progress", "no-warnings": "its own messages", "duration-log.disable": "its own messages",
