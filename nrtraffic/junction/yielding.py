@@ -28,7 +28,7 @@ from nrtraffic.control.table import N_PROFILE_SEG
 from nrtraffic.lifecycle import State
 from nrtraffic.planning.coordinator import Request, ScheduleInfeasible, restore, snapshot
 
-YIELD_AFTER_S = 2.0  # a human driver's start later than this from now asks the controlled vehicles to give way [s]
+YIELD_AFTER_S = 2.0  # a crossing from rest that starts later than this from now asks the others to give way [s]
 ROOM_M = 10.0  # ... those that could stop before their merging zone with this much to spare [m]
 GAIN_S = 0.5  # ... where its start comes at least this much sooner [s]
 
