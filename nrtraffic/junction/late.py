@@ -20,7 +20,8 @@ the conflict margin after ``t_merge``. Then:
   behind the last vehicle of its lane, as for any vehicle standing at its stop line
   (``controlled`` -> ``starting``, :meth:`~nrtraffic.junction.admission.Admission.reserve_from_rest`).
 
-A vehicle's ``replans`` in vehicles.csv counts how often this happened to it.
+A vehicle's ``replans`` in vehicles.csv counts how often its plan was made again: here, or to give
+way to a crossing from rest (:mod:`nrtraffic.junction.yielding`).
 """
 
 from __future__ import annotations
