@@ -21,6 +21,7 @@ import json
 import math
 import shutil
 import tempfile
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -162,15 +163,23 @@ def compare_runs(recorded: Path, replayed: Path, rtol: float = RTOL, atol: float
         if m_rec.is_file() != m_new.is_file():
             diffs.append(Difference(name, "file", m_rec.is_file(), m_new.is_file()))
         elif m_rec.is_file():
-            a, b = pd.read_csv(m_rec), pd.read_csv(m_new)
+            try:
+                a, b = pd.read_csv(m_rec), pd.read_csv(m_new)
+            except (ValueError, pd.errors.EmptyDataError) as exc:  # (an emptied or garbled table)
+                diffs.append(Difference(name, "readable", False, f"{type(exc).__name__}: {exc}"))
+                continue
             diffs += _compare_frames(name, a, b, [k for k in keys if k in a.columns and k in b.columns], rtol, atol,
                                      limit, rounded=True)
     r_rec, r_new = recorded / "sumo" / "routes.rou.xml", replayed / "sumo" / "routes.rou.xml"
     if r_rec.is_file() != r_new.is_file():
         diffs.append(Difference("sumo/routes.rou.xml", "file", r_rec.is_file(), r_new.is_file()))
     elif r_rec.is_file():  # (the demand SUMO was given: rebuilt from the configuration)
-        diffs += _compare_frames("sumo/routes.rou.xml", _departures(r_rec), _departures(r_new), ["id"], rtol, atol,
-                                 limit)
+        try:
+            d_rec, d_new = _departures(r_rec), _departures(r_new)
+        except ET.ParseError as exc:
+            diffs.append(Difference("sumo/routes.rou.xml", "readable", False, f"ParseError: {exc}"))
+        else:
+            diffs += _compare_frames("sumo/routes.rou.xml", d_rec, d_new, ["id"], rtol, atol, limit)
     sumo_outputs = (("tripinfo.xml", "tripinfo", ["id"]),
                     ("collisions.xml", "collision", ["time", "collider", "victim", "type"]))
     for name, tag, keys in sumo_outputs:
@@ -178,8 +187,10 @@ def compare_runs(recorded: Path, replayed: Path, rtol: float = RTOL, atol: float
         if x_rec.is_file() != x_new.is_file():
             diffs.append(Difference(name, "file", x_rec.is_file(), x_new.is_file()))
         elif x_rec.is_file():  # (SUMO's own outputs: its trips, its collisions)
-            a, b = _elements(x_rec, tag), _elements(x_new, tag)
-            if len(a) != len(b):
+            (a, whole_a), (b, whole_b) = _elements(x_rec, tag), _elements(x_new, tag)
+            if whole_a != whole_b:  # (a garbled or emptied file, or one with more after its end)
+                diffs.append(Difference(name, "whole XML", whole_a, whole_b))
+            elif len(a) != len(b):
                 diffs.append(Difference(name, f"<{tag}> elements", len(a), len(b)))
             elif len(a):
                 diffs += _compare_frames(name, a, b, [k for k in keys if k in a.columns and k in b.columns], rtol,
@@ -187,24 +198,22 @@ def compare_runs(recorded: Path, replayed: Path, rtol: float = RTOL, atol: float
     return diffs
 
 
-def _elements(path: Path, tag: str) -> pd.DataFrame:
-    """The attributes of every ``<tag>`` of a SUMO output file, a row each (numbers as numbers); a
-    file cut short (a run stopped mid-write) up to its last whole element."""
-    import xml.etree.ElementTree as ET
-
-    rows = []
+def _elements(path: Path, tag: str) -> tuple[pd.DataFrame, bool]:
+    """The attributes of every ``<tag>`` of a SUMO output file, a row each (numbers as numbers), up
+    to its last whole element, and whether the file is whole XML."""
+    rows, whole = [], True
     try:
         for _, el in ET.iterparse(path):
             if el.tag == tag:
                 rows.append(dict(el.attrib))
     except ET.ParseError:
-        pass
+        whole = False
     df = pd.DataFrame(rows)
     for c in df.columns:
         num = pd.to_numeric(df[c], errors="coerce")
         if num.notna().all():
             df[c] = num
-    return df
+    return df, whole
 
 
 def _departures(path: Path) -> pd.DataFrame:

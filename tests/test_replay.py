@@ -155,6 +155,9 @@ def test_a_recorded_table_whose_rows_repeat_their_keys_differs_rather_than_faili
     ("routes", "sumo/routes.rou.xml"),
     ("collision", "collisions.xml"),
     ("trip", "tripinfo.xml"),
+    ("garbled", "collisions.xml"),
+    ("empty_table", "movements.csv"),
+    ("empty_routes", "sumo/routes.rou.xml"),
 ])
 def test_an_edited_movement_table_or_route_file_differs(tmp_path, capsys, edit, where):
     """The recorded movements.csv, the route file SUMO was given and SUMO's own outputs are
@@ -178,6 +181,12 @@ def test_an_edited_movement_table_or_route_file_differs(tmp_path, capsys, edit, 
         (run / "collisions.xml").write_text(text[:end] + '    <collision time="30.00" type="collision" lane="N_in_0" '
                                             'pos="100.00" collider="a" victim="b" colliderType="t" victimType="t" '
                                             'colliderSpeed="5.00" victimSpeed="0.00"/>\n' + text[end:])
+    elif edit == "garbled":  # (it said "matches": the file was read as cut short)
+        (run / "collisions.xml").write_text("garbage<<")
+    elif edit == "empty_table":  # (a traceback from pandas)
+        (run / "movements.csv").write_text("")
+    elif edit == "empty_routes":  # (a traceback from the XML parser)
+        (run / "sumo" / "routes.rou.xml").write_text("")
     else:  # (the golden run's cars are all still on their way at its end: a made-up finished trip)
         text = (run / "tripinfo.xml").read_text()
         end = text.rindex("</tripinfos>")
