@@ -285,6 +285,11 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
                 raise DemandFileError(f"{where}: depart={el.get('depart')} is negative (SUMO's clock starts at 0)")
             out.append((vid, legs, t, v0, x0, edges, ln, kind))
             continue
+        rates = [k for k in ("period", "vehsPerHour", "perHour", "probability") if el.get(k) is not None]
+        if len(rates) > 1:  # (SUMO refuses it; the run took one of them)
+            raise DemandFileError(f"{where}: gives both {rates[0]} and {rates[1]}; give one rate")
+        if el.get("number") is not None and _num(el, "number", where) < 0:
+            raise DemandFileError(f"{where}: number={el.get('number')} is negative")
         begin = _num(el, "begin", where, 0.0)
         end = min(_num(el, "end", where, math.inf), end_s)
         if el.get("number") is None and _flow_size(el, end if math.isfinite(end) else None) > MAX_FLOW_VEHICLES:
@@ -304,6 +309,8 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
                 rate = float(el.get("period")[4:-1])
             except ValueError:
                 raise DemandFileError(f"{where}: period={el.get('period')!r} is not exp(RATE)") from None
+            if not rate > 0:
+                raise DemandFileError(f"{where}: period={el.get('period')!r}: the rate of exp(RATE) must be > 0")
             t = begin
             while rate > 0:
                 t += rng.exponential(1.0 / rate)
