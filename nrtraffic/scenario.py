@@ -857,6 +857,12 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
                             ".net.xml file in it")
     if not sc.network_path.is_file():
         raise ScenarioError(f"network file not found: {sc.network_path} (scenario.network = {sc.general.network!r})")
+    try:  # (the tracker's predictor model: the vehicle with its mass scaled)
+        sc.vehicle.params().with_mass_factor(sc.controller.predictor_mass_factor)
+    except ValueError as exc:
+        raise ScenarioError(f"controller.predictor_mass_factor = {sc.controller.predictor_mass_factor:g} gives the "
+                            f"predictor a vehicle out of range ({exc}): choose a factor that keeps its mass in "
+                            "range") from None
     if sc.controller.plant_step_s > sc.sumo.step_length_s:
         raise ScenarioError("controller.plant_step_s must not exceed sumo.step_length_s")
     ratio = sc.sumo.step_length_s / sc.controller.plant_step_s

@@ -7,7 +7,7 @@ import subprocess
 import sys
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from conftest import ROOT, SCENARIOS
@@ -44,6 +44,7 @@ def test_values_outside_the_range_are_refused_naming_the_key(sec, key):
 @given(key=st.sampled_from(KEYS), value=st.one_of(st.sampled_from(EXTREMES),
                                                   st.sampled_from([b for keys in S.RANGES.values() for r in keys.values()
                                                                    for b in r])))
+@example(key=("controller", "predictor_mass_factor"), value=0.1)  # (the predictor's mass out of range: exit 1)
 def test_extreme_values_are_refused_or_run_in_bounded_work(key, value, tmp_path_factory):
     sec, k = key
     lo, hi = S.RANGES[sec][k]
