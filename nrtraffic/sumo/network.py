@@ -226,9 +226,11 @@ def _value_error(name: str, kind: str, value: str | None) -> str | None:
         return f"--{name} needs a value ({kind.lower()})"
     if kind in ("INT", "FLOAT", "TIME"):
         try:
-            float(value) if kind != "INT" else int(value)
+            number = float(value) if kind != "INT" else int(value)
         except ValueError:
             return f"--{name} needs a number ({kind.lower()}), not {value!r}"
+        if name == "threads" and number < 1:  # (SUMO refused it once started)
+            return f"--{name} {value}: SUMO needs at least one thread; give 1 or more"
     return None
 
 
@@ -391,9 +393,6 @@ def check_sumo_args(args: tuple[str, ...]) -> None:
         if n in ("remote-port", "num-clients"):
             raise NetworkError(f"sumo.extra_args: {a}: SUMO would wait for a TraCI client of its own and the run "
                                "would never start; leave it out")
-    threads = [a for a, n in given if n == "threads"]
-    if threads and any(_value_of(args, a) in ("0",) or (_value_of(args, a) or "1").startswith("-") for a in threads):
-        raise NetworkError(f"sumo.extra_args: {threads[0]}: SUMO needs at least one thread; give 1 or more")
     of_output = [_shown(a, n) for a, n in given if n not in sumo_writing_options()
                  and any(n.startswith(w + ".") for w in sumo_writing_options())]
     if of_output:
@@ -408,17 +407,6 @@ def check_sumo_args(args: tuple[str, ...]) -> None:
         raise NetworkError(f"sumo.extra_args: {', '.join(reading)} would have SUMO read a file that the run does not "
                            "check or copy into its folder (a replay of the run could not find it); leave it out: "
                            "the run's inputs are the scenario's network and demand")
-
-
-def _value_of(args: tuple[str, ...], item: str) -> str | None:
-    """The value given with option ``item`` of ``args`` (``--name=value``, ``-xvalue`` or the next
-    item), or None."""
-    if "=" in item:
-        return item.split("=", 1)[1]
-    if not item.startswith("--") and len(item) > 2:
-        return item[2:]
-    k = args.index(item)
-    return args[k + 1] if k + 1 < len(args) else None
 
 
 def edge_lanes(net_path: Path, edges) -> list[tuple[str, str, float]]:
