@@ -5,21 +5,27 @@ import numpy as np
 import pytest
 
 from nrtraffic import scenario
-from nrtraffic.junction.late import earliest_entry_s
+from nrtraffic.planning.crossing import travel_time, travel_times
 from runners.single import run_scenario
 
 
 @pytest.mark.parametrize("v, D, a, v_max", [(0.0, 20.0, 2.5, 13.89), (5.0, 200.0, 2.5, 13.89),
-                                             (13.89, 50.0, 2.5, 13.89), (15.0, 30.0, 2.0, 13.0), (3.0, 0.0, 2.0, 13.0)])
-def test_earliest_entry_is_the_fastest_motion_within_the_bounds(v, D, a, v_max):
-    """Against a fine explicit integration of full acceleration up to the top speed."""
+                                             (13.89, 50.0, 2.5, 13.89), (15.0, 30.0, 2.0, 15.0), (3.0, 0.0, 2.0, 13.0)])
+def test_the_fastest_entry_is_the_fastest_motion_within_the_bounds(v, D, a, v_max):
+    """The late guard's fastest entry (``travel_times`` from the speed now, up to ``v_max``)
+    against a fine explicit integration of full acceleration up to the top speed."""
     dt, x, u, t = 1e-4, 0.0, v, 0.0
-    top = max(v, v_max)
     while x < D:
-        u_next = min(u + a * dt, top)
+        u_next = min(u + a * dt, v_max)
         x += 0.5 * (u + u_next) * dt
         u, t = u_next, t + dt
-    assert float(earliest_entry_s(np.array([v]), np.array([D]), a, v_max)[0]) == pytest.approx(t, abs=2e-3)
+    assert float(travel_times(np.array([D]), a, v_max, np.array([v]))[0]) == pytest.approx(t, abs=2e-3)
+
+
+def test_travel_times_is_travel_time_of_each_element():
+    rng = np.random.default_rng(3)
+    d, v0, cap = rng.uniform(-5, 300, 400), rng.uniform(0, 20, 400), rng.uniform(1, 20, 400)
+    assert travel_times(d, 2.5, cap, v0).tolist() == [travel_time(*x) for x in zip(d, [2.5] * 400, cap, v0)]
 
 
 def test_a_car_held_up_by_a_vehicle_its_plan_did_not_know_stops_and_is_planned_again(tmp_path):

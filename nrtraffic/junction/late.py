@@ -31,19 +31,9 @@ import math
 import numpy as np
 
 from nrtraffic.control import batch as kb
+from nrtraffic.planning.crossing import travel_times
 
 STANDING_MPS = 0.1  # below this speed a late vehicle stands, and its start is reserved again [m/s]
-
-
-def earliest_entry_s(v: np.ndarray, D: np.ndarray, a: float, v_max: float) -> np.ndarray:
-    """Shortest time [s] to cover ``D`` [m] from speed ``v`` [m/s] accelerating at ``a`` [m/s^2]
-    up to ``v_max`` [m/s] (a speed above it is kept)."""
-    v = np.asarray(v, dtype=float)
-    D = np.maximum(np.asarray(D, dtype=float), 0.0)
-    top = np.maximum(v_max, v)
-    d_acc = (top * top - v * v) / (2.0 * a)  # distance to reach the top speed
-    t_acc = (-v + np.sqrt(v * v + 2.0 * a * np.minimum(D, d_acc))) / a
-    return t_acc + np.maximum(D - d_acc, 0.0) / top
 
 
 class LateGuard:
@@ -59,15 +49,14 @@ class LateGuard:
         self.brake = sc.barriers.max_braking_mps2
         self.gated: dict[str, float] = {}  # late vehicle -> arc length [m] its centre of gravity stops at
 
-    def _late(self) -> np.ndarray:
-        """Which rows of the kernel's table are late now."""
-        st, ctl = self.st, self.st.kernel.table
-        s = ctl.out[:, kb.OUT_S]
+    def _late(self, s: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Which rows of the kernel's table are late now, at arc lengths ``s`` [m] and speeds ``v``
+        [m/s]: their fastest entry (a speed above ``v_max`` kept) comes too late."""
+        ctl = self.st.kernel.table
         before = s < ctl.s_zone[:, 0]
         if not before.any():
             return before
-        v = np.hypot(ctl.X[:, 2], ctl.X[:, 3])
-        t_in = st.t + earliest_entry_s(v, ctl.s_zone[:, 0] - s, self.a, self.v_max)
+        t_in = self.st.t + travel_times(ctl.s_zone[:, 0] - s, self.a, np.maximum(self.v_max, v), v)
         return before & (t_in > ctl.t_merge + self.tol_s)
 
     def step(self) -> None:
@@ -78,11 +67,10 @@ class LateGuard:
         self.gated.clear()
         if not ctl.ids:
             return
-        late = self._late()
+        s, v = ctl.out[:, kb.OUT_S], np.hypot(ctl.X[:, 2], ctl.X[:, 3])
+        late = self._late(s, v)
         if not late.any():
             return
-        s = ctl.out[:, kb.OUT_S]
-        v = np.hypot(ctl.X[:, 2], ctl.X[:, 3])
         cg = st.params.cg_to_front
         again = np.zeros(len(ctl.ids), dtype=bool)
         for i in np.flatnonzero(late).tolist():

@@ -49,7 +49,7 @@ from typing import ClassVar
 import numpy as np
 
 from nrtraffic.planning.conflicts import CONFLICT
-from nrtraffic.planning.crossing import travel_time
+from nrtraffic.planning.crossing import travel_time, travel_times
 from nrtraffic.planning.profiles import (InfeasibleProfile, PlanBounds, Profile, earliest_fixed, fixed_terminal,
                                          free_terminal, max_time, min_time, rear_end_constrained, rear_end_violation,
                                          standing_start)
@@ -644,7 +644,7 @@ def start_behind(prev: Assignment, t0: float, D: float, a: float, v_cap: float, 
     spacing = D - lead.D + lead.evaluate(grid)[0]  # centre to centre if this car stood still [m]
     gap = min(delta, max(float(spacing.min()) - 0.5, 0.5))
     x = spacing - gap  # what it may have covered by each instant [m]
-    T = np.array([travel_time(d, a, v_cap) for d in x.tolist()])
+    T = travel_times(x, a, v_cap)
     return max(t0, float(np.max(grid - T)))
 
 

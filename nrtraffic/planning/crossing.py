@@ -40,6 +40,19 @@ def travel_time(d: float, a: float, v_cap: float, v0: float = 0.0) -> float:
     return (v_cap - v0) / a + (d - d_acc) / v_cap
 
 
+def travel_times(d, a: float, v_cap, v0=0.0) -> np.ndarray:
+    """:func:`travel_time` of arrays (``d``, ``v_cap`` and ``v0`` broadcast), branch for branch."""
+    d, v_cap, v0 = np.broadcast_arrays(np.asarray(d, dtype=float), np.asarray(v_cap, dtype=float),
+                                       np.asarray(v0, dtype=float))
+    d_acc = (v_cap * v_cap - v0 * v0) / (2.0 * a)
+    with np.errstate(invalid="ignore"):  # (the branches np.where does not take)
+        accelerating = (np.sqrt(v0 * v0 + 2.0 * a * d) - v0) / a
+    capped = (v_cap - v0) / a + (d - d_acc) / v_cap
+    t = np.where(d <= d_acc, accelerating, capped)
+    t = np.where(v0 >= v_cap, d / v_cap, t)
+    return np.where(d <= 0.0, 0.0, t)
+
+
 def speed_from_rest(d: float, a: float, v_cap: float, v0: float = 0.0) -> float:
     """Speed [m/s] after ``d`` [m] from speed ``v0`` (default rest) at acceleration ``a`` up to
     ``v_cap`` (from above the cap: the cap)."""
