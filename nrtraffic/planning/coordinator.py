@@ -461,22 +461,22 @@ class Coordinator:
         return new
 
     def cancel(self, vehicle_id: str) -> None:
-        """Give up ``vehicle_id``'s plan or reservation (late); a lane's or movement's last is then the latest left."""
+        """Give up ``vehicle_id``'s plan or reservation; a lane's or movement's last is then the latest left."""
         self._reserved = [a for a in self._reserved if a.vehicle_id != vehicle_id]
-        for last, key in ((self._last_on_lane, "lane"), (self._last_on_movement, "movement")):
+        lasts = ((self._last_on_lane, "lane", "t_merge"), (self._last_on_movement, "movement", "t_exit"))
+        for last, key, by in lasts:  # (by: as schedule_request orders them)
             for k in [k for k, a in last.items() if a.vehicle_id == vehicle_id]:
                 left = [a for a in self._reserved if getattr(a, key) == k]
                 last.pop(k)
                 if left:
-                    last[k] = max(left, key=lambda a: a.t_merge)
+                    last[k] = max(left, key=lambda a: getattr(a, by))
 
     def last_on_lane(self, lane: str) -> Assignment | None:
         """The last assignment on entry lane ``lane`` (the one a new request there follows)."""
         return self._last_on_lane.get(lane)
 
     def reserved_after(self, t: float) -> bool:
-        """Whether a reservation of a conflict area (a plan or a reserved crossing) ends after
-        ``t`` [s]."""
+        """Whether a reservation of a conflict area (a plan or a reserved crossing) ends after ``t`` [s]."""
         return any(a.t_exit > t for a in self._reserved)
 
     def reserve_crossing(self, vehicle_id: str, lane: str, movement: str, t0: float, offsets: dict,
