@@ -135,7 +135,7 @@ class Demand:
         net = read_net(self.sc.network_path)
         files = d.route_files(self.sc.base_dir)
         read = read_sumo_demand(routed(merged(files), self.sc.network_path), by_edges, rng, t0 + end, d.entry_speed_mps,
-                                net=net, source=", ".join(f.name for f in files))
+                                net=net, source=", ".join(f.name for f in files), notes=self.notes)
         named: dict[tuple, str] = {}
         variants: dict[tuple, int] = {}  # crossings -> routes named for them so far
         veh = []
@@ -160,10 +160,6 @@ class Demand:
             classes[vclass] = classes.get(vclass, 0) + 1
             veh.append((vid, key, t, v0, pos, lane))
         others = {k: n for k, n in classes.items() if k != "passenger"}
-        stops = sum(_stops(f) for f in files)
-        if stops:
-            self.notes.append(f"demand.sumo_routes: its {stops} <stop> elements are left out (the run's vehicles "
-                              "drive their routes without stopping)")
         if veh:
             among = ", ".join(f"{n} of vClass {k}" for k, n in sorted(others.items()))
             self.notes.append(f"demand.sumo_routes: its {len(veh)} vehicles drive as nrtraffic's car (the file's "
@@ -341,13 +337,3 @@ class Demand:
         routes = {k: self.route_edges(k) for k in [*self.movement_table, *self.itineraries]}
         write_routes(path, types, routes, demand, t0_s=self.sc.general.begin_s)
         return demand
-
-
-def _stops(path) -> int:
-    """How many ``<stop>`` elements a route file has (the run leaves them out)."""
-    import xml.etree.ElementTree as ET
-
-    try:
-        return sum(1 for _ in ET.parse(path).getroot().iter("stop"))
-    except (OSError, ET.ParseError):
-        return 0

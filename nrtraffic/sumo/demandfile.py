@@ -162,7 +162,8 @@ def routed(path: Path, net_path: Path) -> Path:
 
 
 def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.random.Generator, end_s: float,
-                     entry_speed_mps: float, net=None, source: str | None = None) -> list[tuple]:
+                     entry_speed_mps: float, net=None, source: str | None = None,
+                     notes: list[str] | None = None) -> list[tuple]:
     """Departures ``(vehicle_id, crossings, depart_s, depart_speed_mps, depart_pos_m, edges,
     depart_lane, vclass)`` of the file (``vclass``: SUMO's vClass of its ``<vType>``, "passenger"
     where it has none), up to ``end_s`` [s] for open-ended flows: ``crossings`` the
@@ -174,7 +175,8 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
     ``entry_speed_mps``; ``departPos`` where it is a number, else -1 (SUMO's ``base``);
     ``departLane`` as given (a lane index or SUMO's word), else "best". A trip given by
     ``from``/``to`` that is not routed (:func:`routed`) is the two edges. ``source``: the file's
-    name in messages (the user's, where ``path`` is its routed copy)."""
+    name in messages (the user's, where ``path`` is its routed copy). ``notes``: where to say what
+    the run leaves out (its ``<stop>`` elements)."""
     path = Path(path)
     label = source or path.name
     try:
@@ -183,6 +185,10 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
         raise DemandFileError(f"demand.sumo_routes {label}: cannot be read as XML: {exc}") from None
     routes = {r.get("id"): r.get("edges", "").split() for r in root.findall("route")}
     vclass = {t.get("id"): t.get("vClass", "passenger") for t in root.iter("vType")}
+    stops = sum(1 for _ in root.iter("stop"))
+    if stops and notes is not None:
+        notes.append(f"demand.sumo_routes: its {stops} <stop> elements are left out (the run's vehicles drive their "
+                     "routes without stopping)")
     checked: set[tuple[str, ...]] = set()
 
     def crossings(edges: list[str], where: str) -> tuple[str, ...]:
