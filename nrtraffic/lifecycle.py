@@ -151,7 +151,7 @@ class VehicleRecord:
     t_arrive: float = math.nan  # when its centre of gravity crossed the control-zone entry [s] ...
     s_arrive: float = math.nan  # ... and where on its path it was then [m] (delay is counted from there)
     look_after: float = -math.inf  # before its zone entry: the earliest time it can reach it [s]
-    replans: int = 0  # how often it was late under control and its start was reserved again
+    replans: int = 0  # how often its plan was made again (late: junction.late; giving way: junction.yielding)
 
 
 class Lifecycle:

@@ -64,7 +64,8 @@ class ControlledTable:
                s_zone: tuple[float, float], t_merge: float = math.inf) -> None:
         """A vehicle taken under control at time ``t0`` [s]: state ``x0``, profile ``prof`` from
         arc length ``s0`` [m] of path ``pid``, lateral offset ``lat0`` [m], reference point
-        ``ref0`` (x, y) [m], planned merging-zone entry ``t_merge`` [s]; SUMO drove it at constant speed, straight ahead, until now."""
+        ``ref0`` (x, y) [m], planned merging-zone entry ``t_merge`` [s]; SUMO drove it at constant
+        speed, straight ahead, until now."""
         self.ids.append(vid)
         row = {
             "X": x0[None], "U": np.zeros((1, 2)), "prof": prof[None], "t_enter": [t0], "s_enter": [s0],

@@ -92,7 +92,6 @@ def advance(st, vid: str) -> None:
         _note(st, vid, new, bounds)
 
 
-
 def standing_in_queue(st, vid: str) -> bool:
     """Whether a human driver stands on its entry lane short of its stop, within
     ``human.queue_reach_m`` of it (held there by the vehicles ahead)."""
