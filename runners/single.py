@@ -189,15 +189,20 @@ def _tree(out: Path) -> set[str]:
     return {p.relative_to(out).as_posix() for p in out.rglob("*")}
 
 
-def read_manifest(out: Path) -> dict | None:
+def read_manifest(out: Path, sweep: bool = False) -> dict | None:
     """``out``'s manifest when it is a run's (a JSON object whose ``preexisting`` and ``created`` are
-    lists of paths), else None (a file of that name of the user's own, or a damaged one)."""
+    lists of paths), or with ``sweep`` a sweep's (the same, marked ``"sweep": 1``: a command that
+    replaces a run never takes it for one); else None (a file of that name of the user's own, or a
+    damaged one)."""
     try:
         m = json.loads((Path(out) / MANIFEST).read_text())
     except (OSError, ValueError):
         return None
-    if not (isinstance(m, dict) and set(m) == {"preexisting", "created"}
-            and all(isinstance(v, list) and all(isinstance(x, str) for x in v) for v in m.values())):
+    if not isinstance(m, dict) or set(m) != {"preexisting", "created", *(("sweep",) if sweep else ())}:
+        return None
+    lists = (m["preexisting"], m["created"])
+    if (sweep and m["sweep"] != 1) or not all(isinstance(v, list) and all(isinstance(x, str) for x in v)
+                                              for v in lists):
         return None
     return m
 
@@ -292,10 +297,8 @@ def claim_run_dir(out: Path, sc: scenario_mod.Scenario, seed: int | None, durati
 
 def in_a_sweep(path: Path) -> Path | None:
     """The sweep folder (one with a sweep's manifest) that ``path`` is, or lies in; None."""
-    from runners.sweep import read_sweep_manifest
-
     p = Path(path).absolute()
-    return next((q for q in (p, *p.parents) if read_sweep_manifest(q) is not None), None)
+    return next((q for q in (p, *p.parents) if read_manifest(q, sweep=True) is not None), None)
 
 
 def remove_run_files(out: Path, keep: Path | None = None) -> None:

@@ -1087,7 +1087,7 @@ def seed_figure(df: pd.DataFrame, path: Path) -> None:
     plt.close(fig)
 
 
-# what a sweep keeps beside its tables in ``--out``: its runs, its batch jobs' scripts, its manifest
+# what a sweep keeps beside its tables and manifest in ``--out``: its runs, its batch jobs' scripts
 SWEEP_FOLDERS = ("runs", "jobs")
 
 
@@ -1102,20 +1102,18 @@ def check_out(out: Path) -> None:
     sweep recorded in its manifest as written (:func:`record_tables`), so that a sweep's tables and
     report never replace a user's files of the same name."""
     from runners.api import OutputError, usable_path
-    from runners.single import MANIFEST
+    from runners.single import MANIFEST, in_a_sweep, read_manifest
 
     try:
         usable_path(out)
     except OutputError as exc:
         raise SweepError(str(exc)) from None
-    from runners.single import in_a_sweep
-
     owner = in_a_sweep(out.absolute().parent)
     if owner is not None:
         raise SweepError(f"--out {out} lies in the sweep folder {owner}: choose a folder outside it")
     if not out.is_dir():
         return
-    m = read_sweep_manifest(out)
+    m = read_manifest(out, sweep=True)
     own = set(m["created"]) | {MANIFEST} if m is not None else set()
     foreign = sorted(p.name for p in out.iterdir() if p.name not in own and p.name not in SWEEP_FOLDERS)
     if foreign and not (out / "runs").is_dir():
@@ -1129,30 +1127,15 @@ def check_out(out: Path) -> None:
                          "or choose another folder")
 
 
-def read_sweep_manifest(out: Path) -> dict | None:
-    """``out``'s manifest when it is a sweep's (``"sweep": 1``, and ``preexisting`` and ``created``
-    as a run's; a command that replaces a run never takes it for one), else None."""
-    from runners.single import MANIFEST
-
-    try:
-        m = json.loads((Path(out) / MANIFEST).read_text())
-    except (OSError, ValueError):
-        return None
-    if not (isinstance(m, dict) and set(m) == {"sweep", "preexisting", "created"} and m["sweep"] == 1
-            and all(isinstance(m[k], list) and all(isinstance(x, str) for x in m[k]) for k in ("preexisting", "created"))):
-        return None
-    return m
-
-
 def record_tables(out: Path, written: bool) -> None:
     """The sweep's manifest in ``out`` (``manifest.json``: what was there before, what it created,
-    :func:`read_sweep_manifest`): begun before the tables are written (``written`` False; a new
-    one lists the folder's top level as there before), then, once written, listing every
-    top-level name it created. :func:`check_out` lets a resume write only over those."""
-    from runners.single import MANIFEST, _write_json
+    :func:`~runners.single.read_manifest`): begun before the tables are written (``written``
+    False; a new one lists the folder's top level as there before), then, once written, listing
+    every top-level name it created. :func:`check_out` lets a resume write only over those."""
+    from runners.single import MANIFEST, _write_json, read_manifest
 
-    m = read_sweep_manifest(out) or {"sweep": 1, "preexisting": sorted(p.name for p in out.iterdir()
-                                                                        if p.name != MANIFEST), "created": []}
+    before = sorted(p.name for p in out.iterdir() if p.name != MANIFEST)
+    m = read_manifest(out, sweep=True) or {"sweep": 1, "preexisting": before, "created": []}
     if written:
         now = {p.name for p in out.iterdir()} - {MANIFEST, MANIFEST + ".tmp"}
         m["created"] = sorted((now - set(m["preexisting"])) | set(m["created"]))
@@ -1194,7 +1177,9 @@ def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]
     try:
         return run_sweep(jobs, out, workers=workers, scheduler=scheduler, progress=progress, batch=batch)
     except SweepError:  # (a scheduler it cannot use: the folder it made for nothing goes again)
-        if created and Path(out).is_dir() and {p.name for p in Path(out).iterdir()} <= {"manifest.json"}:
+        from runners.single import MANIFEST
+
+        if created and Path(out).is_dir() and {p.name for p in Path(out).iterdir()} <= {MANIFEST}:
             shutil.rmtree(out)
         raise
     except KeyboardInterrupt:
