@@ -104,8 +104,8 @@ def finish() -> None:
 
 
 def settle() -> None:
-    """The process is about to exit with the command's status: SIGTERM and SIGINT are ignored from
-    now on. (The interpreter, shutting down, puts back the default action of a signal whose handler
+    """The process is about to exit with the command's status: the signals it handles are ignored
+    from now on. (The interpreter, shutting down, puts back the default action of a signal whose handler
     is Python's, which would end the process with 143 or 130 after its outputs were complete and
     its status printed; an ignored signal it leaves ignored.)"""
     if _installed:

@@ -219,8 +219,6 @@ def _elements(path: Path, tag: str) -> tuple[pd.DataFrame, bool]:
 def _departures(path: Path) -> pd.DataFrame:
     """Each vehicle of a run's route file: id, departure [s], departure lane, position and speed,
     and its route's edges."""
-    import xml.etree.ElementTree as ET
-
     root = ET.parse(path).getroot()
     named = {r.get("id"): r.get("edges", "") for r in root.findall("route")}
     rows = []
