@@ -209,10 +209,11 @@ def read_manifest(out: Path, sweep: bool = False) -> dict | None:
 
 def run_file_names(sc: scenario_mod.Scenario) -> list[str]:
     """The files (and the ``sumo`` folder) a run of ``sc`` may write into its directory while it
-    simulates, by name: SUMO's outputs only where ``[outputs]`` asks for them. (Its figures and
-    report come at its end, and the manifest lists them once written.)"""
+    simulates, by name: SUMO's outputs only where ``[outputs]`` asks for them. (Its tables are
+    listed just before each checkpoint writes them, :func:`plan_manifest`; its figures and report
+    come at its end, and the manifest lists them once written.)"""
     o = sc.outputs
-    skip = set(REPORT_FILES) | ({"fcd.xml"} if not o.sumo_fcd else set()) | (
+    skip = set(REPORT_FILES) | set(TABLE_FILES) | ({"fcd.xml"} if not o.sumo_fcd else set()) | (
         {"tripinfo.xml"} if not o.sumo_tripinfo else set()) | ({"collisions.xml"} if not o.sumo_collisions else set())
     return [*(n for n in RUN_FILES if n not in skip), "sumo", "sumo/routes.rou.xml", "sumo/run.sumocfg",
             "sumo/queues.add.xml", f"sumo/{sc.network_path.name}", *(name for _, name in route_copies(sc))]
@@ -220,6 +221,9 @@ def run_file_names(sc: scenario_mod.Scenario) -> list[str]:
 
 # what a run writes at its end, only where its data has them: its figures and report
 REPORT_FILES = ("movements.png", "delays.png", "queues.png", "time_space.png", "arterial.png", "report.html")
+# what a run writes at each checkpoint (each under its temporary name first)
+TABLE_FILES = ("vehicles.csv", "movements.csv", "approaches.csv", "vehicles.csv.tmp", "movements.csv.tmp",
+               "approaches.csv.tmp")
 
 
 def begin_manifest(out: Path, planned=()) -> None:
@@ -245,6 +249,18 @@ def update_manifest(out: Path, final: bool = False) -> None:
     pre = set(m.get("preexisting", []))
     written = _tree(out) - pre - {MANIFEST}
     m["created"] = sorted(written if final else written | set(m.get("created", [])))
+    _write_json(out / MANIFEST, m)
+
+
+def plan_manifest(out: Path, names) -> None:
+    """Add ``names`` to ``out``'s manifest as created, just before the run writes them: a run killed
+    while it writes them can still be replaced with ``--force``, and one killed before never claims
+    a file of that name that the user puts there afterwards."""
+    out = Path(out)
+    m = read_manifest(out)
+    if m is None or set(names) <= set(m["created"]):
+        return
+    m["created"] = sorted((set(m["created"]) | set(names)) - set(m["preexisting"]) - {MANIFEST})
     _write_json(out / MANIFEST, m)
 
 
@@ -446,6 +462,8 @@ def _write(result: RunResult, out: Path, final: bool = False) -> None:
     a table cannot be written (a full disk), summary.json still is, saying ``"status": "failed"``
     and why (in the space the earlier summary holds), and the OSError goes on."""
     try:
+        tables = ("vehicles.csv", "movements.csv", *(("approaches.csv",) if "approaches" in result.extra else ()))
+        plan_manifest(out, [n for t in tables for n in (t, t + ".tmp")])
         write_vehicles(out / "vehicles.csv", result.vehicles)
         write_movements(out / "movements.csv", result)
         if "approaches" in result.extra:
