@@ -350,6 +350,12 @@ def sweep_figures(df: pd.DataFrame, summ: pd.DataFrame, out: Path) -> list[str]:
     return ["sweep.png", "sweep_seeds.png"]
 
 
+sweep_figures.names = ("sweep.png", "sweep_seeds.png", "drivers.png")  # every name it may write
+# what write_tables writes beside the figures
+TABLE_NAMES = ("sweep.csv", "sweep_summary.csv", "sweep.md", "sweep_approaches.csv", "sweep_movements.csv",
+               "report.html")
+
+
 class Progress:
     """How far a sweep is: a tqdm bar on a terminal; elsewhere (a file, a pipe, CI) a line on
     stderr per finished run, or per 2 % of the runs when there are more than 50::
@@ -514,6 +520,8 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
                 if cluster is not None:
                     cluster.close()
     df = collect(jobs, errors)
+    # (listed before they are written: a sweep killed while it writes them can be resumed)
+    record_tables(out, written=False, planned=(*TABLE_NAMES, *getattr(figures, "names", ())))
     write_tables(df, out, figures)
     record_tables(out, written=True)
     return df
@@ -1127,15 +1135,17 @@ def check_out(out: Path) -> None:
                          "or choose another folder")
 
 
-def record_tables(out: Path, written: bool) -> None:
+def record_tables(out: Path, written: bool, planned=()) -> None:
     """The sweep's manifest in ``out`` (``manifest.json``: what was there before, what it created,
-    :func:`~runners.single.read_manifest`): begun before the tables are written (``written``
-    False; a new one lists the folder's top level as there before), then, once written, listing
-    every top-level name it created. :func:`check_out` lets a resume write only over those."""
+    :func:`~runners.single.read_manifest`): begun before the runs (``written`` False; a new one
+    lists the folder's top level as there before), given the names of the tables and figures just
+    before they are written (``planned``), then, once written, listing every top-level name it
+    created. :func:`check_out` lets a resume write only over those."""
     from runners.single import MANIFEST, _write_json, read_manifest
 
     before = sorted(p.name for p in out.iterdir() if p.name != MANIFEST)
     m = read_manifest(out, sweep=True) or {"sweep": 1, "preexisting": before, "created": []}
+    m["created"] = sorted(set(m["created"]) | (set(planned) - set(m["preexisting"])))
     if written:
         now = {p.name for p in out.iterdir()} - {MANIFEST, MANIFEST + ".tmp"}
         m["created"] = sorted((now - set(m["preexisting"])) | set(m["created"]))

@@ -859,6 +859,27 @@ def test_a_sweep_resumes_only_over_tables_it_wrote(tmp_path, capsys):
     assert "notes.txt" in capsys.readouterr().err and (out / "notes.txt").read_text() == "mine"
 
 
+def test_a_sweep_stopped_while_it_writes_its_tables_resumes(tmp_path, monkeypatch):
+    """A sweep stopped after its runs, half-way through writing its tables (sweep.csv written, the
+    rest not): its manifest already names them, so the next sweep on the folder resumes and writes
+    them whole (it had refused sweep.csv as a file no sweep recorded writing)."""
+    from runners import sweep
+
+    flags = ["--seeds", "1", "--duration", "5", "--set", "outputs.warmup_s=0", "--no-progress", "--workers", "1"]
+    out = tmp_path / "study"
+    write_tables = sweep.write_tables
+
+    def stopped(df, out_dir, figures=sweep.sweep_figures):
+        (out_dir / "sweep.csv").write_text("half")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sweep, "write_tables", stopped)
+    assert main(["sweep", str(CROSS4), "--out", str(out), *flags]) == 1
+    monkeypatch.setattr(sweep, "write_tables", write_tables)
+    assert main(["sweep", str(CROSS4), "--out", str(out), *flags]) == 0
+    assert (out / "sweep.csv").read_text() != "half" and (out / "report.html").is_file()
+
+
 @pytest.mark.parametrize("flags, message", [
     (["--grid", "demand.rate_veh_h=400,400.0"], "400 and 400.0 are the same value"),
     (["--baseline", "traffic_light,traffic_light"], "traffic_light is given twice"),
