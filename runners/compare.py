@@ -15,12 +15,17 @@ def main(args) -> int:
     directories cannot be compared or the output folder cannot be used."""
     from nrtraffic.compare import CompareError, compare, console, write
     from runners.api import OutputError, slug, writable_dir
+    from runners.single import in_a_sweep
 
     try:
         c = compare(args.run_dirs)
         out = args.out or Path("runs") / f"{slug(c.scenario)}-compare"
         if (Path(out) / "summary.json").is_file():
             raise OutputError(f"--out {out}: a run directory; write the comparison into another folder")
+        owner = in_a_sweep(Path(out))
+        if owner is not None:  # (its files there would stop the sweep's resume, which keeps its folder its own)
+            raise OutputError(f"--out {out} lies in the sweep folder {owner}: write the comparison into a folder "
+                              "outside it")
         ours = [n for n in OUTPUTS if (Path(out) / n).exists()]
         if ours and not args.force:
             raise OutputError(f"--out {out} already holds {', '.join(ours)}: choose another folder, or --force to "

@@ -219,6 +219,11 @@ def test_compare_refuses_unfinished_runs_and_other_scenarios(cross4_pair, corrid
     capsys.readouterr()
     assert main(["compare", str(nr), str(cross4_pair / "tl"), "--out", str(mine)]) == 2
     assert "already holds compare.html" in capsys.readouterr().err and (mine / "compare.html").read_text() == "my own page"
+    study = tmp_path / "study"  # a sweep's folder: its resume would refuse files no sweep wrote
+    study.mkdir()
+    (study / "manifest.json").write_text(json.dumps({"sweep": 1, "preexisting": [], "created": []}))
+    assert main(["compare", str(nr), str(cross4_pair / "tl"), "--out", str(study / "cmp")]) == 2
+    assert "lies in the sweep folder" in capsys.readouterr().err and not (study / "cmp").exists()
     empty, listed = tmp_path / "empty", tmp_path / "listed"  # an emptied table, a summary that is no object
     shutil.copytree(nr, empty)
     (empty / "movements.csv").write_text("")
