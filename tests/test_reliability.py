@@ -1126,3 +1126,22 @@ def test_an_approach_that_starts_inside_the_merging_zone_is_refused_naming_the_s
     err = capsys.readouterr().err
     assert "its approach E_in starts 50.0 m from junction C's centre, inside the merging zone" in err
     assert "set zones.merging_zone_m to at most 98 m" in err and not (out / "summary.json").exists()
+
+
+def test_a_run_without_a_duration_ends_when_every_vehicle_stands_still(tmp_path, capsys):
+    """``--duration 0`` runs until every vehicle has left. A SUMO-driven vehicle that stops for good
+    outside every control zone (speed profile to 0 m/s) held it for ever (past a simulated week):
+    now the watchdog ends it after ``outputs.stall_s`` of standstill, as a gridlock naming the
+    vehicle, and an automated car that did cross is in its table."""
+    extra = ('\n[[vehicles]]\nid = "parked"\napproach = "N_in.straight"\ndepart_s = 1.0\ncontrolled = false\n'
+             'speed_profile = [[0.0, 13.0], [5.0, 0.0]]\n'
+             '\n[[vehicles]]\nid = "a1"\napproach = "E_in.straight"\ndepart_s = 2.0\n')
+    d = _scenario_copy(tmp_path, "rate_veh_h = 400.0", "rate_veh_h = 0.0\nend_s = 1.0", extra)
+    out = tmp_path / "o"
+    assert main(["run", str(d), "--out", str(out), "--duration", "0", "--no-progress", "--set", "outputs.stall_s=60",
+                 "--set", "outputs.warmup_s=0"]) == 1
+    assert "every vehicle in the network has stood still for 60 s (outputs.stall_s = 60): parked" in capsys.readouterr().err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "gridlock" and s["sim_time_s"] < 200
+    veh = pd.read_csv(out / "vehicles.csv").set_index("vehicle_id")
+    assert veh.loc["a1", "status"] == "released"  # (crossed, and left to SUMO after its merging zone)
