@@ -312,9 +312,18 @@ def claim_run_dir(out: Path, sc: scenario_mod.Scenario, seed: int | None, durati
 
 
 def in_a_sweep(path: Path) -> Path | None:
-    """The sweep folder (one with a sweep's manifest) that ``path`` is, or lies in; None."""
+    """The sweep folder (one with a sweep's manifest) that ``path`` is, or lies in; or where ``path``
+    is or lies in a sweep's run folder (one with its fingerprint, as every version of the sweep
+    wrote), that sweep's folder (above its ``runs/``); None."""
+    from runners.sweep import FINGERPRINT
+
     p = Path(path).absolute()
-    return next((q for q in (p, *p.parents) if read_manifest(q, sweep=True) is not None), None)
+    for q in (p, *p.parents):
+        if read_manifest(q, sweep=True) is not None:
+            return q
+        if (q / FINGERPRINT).is_file():
+            return next((r.parent for r in q.parents if r.name == "runs"), q)
+    return None
 
 
 def remove_run_files(out: Path, keep: Path | None = None) -> None:

@@ -933,6 +933,13 @@ def test_a_sweep_never_replaces_a_run_folder_holding_the_users_files(tmp_path, c
     assert main(["sweep", str(CROSS4), "--out", str(out / "runs" / "inner"), *flags]) == 2
     assert "lies in the sweep folder" in capsys.readouterr().err
     assert (run / "summary.json").read_text() == recorded and not (out / "runs" / "inner").exists()
+    # a sweep of a version that kept no manifest of its own: its run folders are known by their
+    # fingerprint (a run --force had replaced one)
+    (out / "manifest.json").unlink()
+    assert main(["run", str(CROSS4), "--out", str(run), "--force", "--duration", "5", "--set", "outputs.warmup_s=0",
+                 "--no-progress"]) == 2
+    assert f"lies in the sweep folder {out}" in capsys.readouterr().err
+    assert (run / "summary.json").read_text() == recorded
 
 
 @pytest.mark.parametrize("flags", [["--set", "demand.begin_s=100", "--set", "demand.end_s=10"],
