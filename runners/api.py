@@ -17,6 +17,7 @@ command line imports the helpers it shares with the API from here.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -77,10 +78,14 @@ def claim(out: Path, sc, seed, duration, control: str, force: bool) -> None:
 
     check(sc)
     check_demand(sc, seed, duration)
+    new = [p for p in (Path(out).absolute(), *Path(out).absolute().parents) if not p.exists()]
     writable_dir(out)
     try:
         claim_run_dir(out, sc, seed, duration, control, force)
     except ValueError as exc:
+        for p in new:  # (the folders made for the refused run go again)
+            with contextlib.suppress(OSError):
+                p.rmdir()
         raise OutputError(str(exc)) from None
     except OSError as exc:
         raise OutputError(f"--out {out}: cannot clear the earlier run: {exc}") from None
