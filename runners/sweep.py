@@ -1127,6 +1127,12 @@ def check_out(out: Path) -> None:
     if foreign and not (out / "runs").is_dir():
         raise SweepError(f"--out {out} holds files and no earlier sweep (no runs/ folder): choose an empty folder, "
                          "or the folder of the sweep to resume")
+    runs = out / "runs"
+    if (m is None and runs.is_dir() and any(runs.iterdir())
+            and next(runs.rglob(FINGERPRINT), None) is None):  # (runs/ of a project: the user's own runs)
+        raise SweepError(f"--out {out} holds a runs/ folder that no sweep wrote (none of its runs has a sweep's "
+                         f"{FINGERPRINT}): a sweep would put its runs among them; choose an empty folder, or the "
+                         "folder of the sweep to resume")
     if foreign:
         shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
         raise SweepError(f"--out {out} holds {shown}, which no sweep there recorded writing (files of your own, or "

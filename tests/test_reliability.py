@@ -846,6 +846,12 @@ def test_a_sweep_resumes_only_over_tables_it_wrote(tmp_path, capsys):
     assert main(["sweep", str(CROSS4), "--out", str(mine), *flags]) == 2
     assert "report.html, which no sweep there recorded writing" in capsys.readouterr().err
     assert (mine / "report.html").read_text() == "my report" and not any((mine / "runs").iterdir())
+    (mine / "report.html").unlink()  # (a project whose runs/ holds the user's own runs, no sweep's)
+    assert main(["run", str(CROSS4), "--out", str(mine / "runs" / "cross4"), *flags[2:-2]]) == 0
+    capsys.readouterr()
+    assert main(["sweep", str(CROSS4), "--out", str(mine), *flags]) == 2
+    assert "holds a runs/ folder that no sweep wrote" in capsys.readouterr().err
+    assert sorted(p.name for p in (mine / "runs").iterdir()) == ["cross4"]
     out = tmp_path / "study"
     assert main(["sweep", str(CROSS4), "--out", str(out), *flags]) == 0
     created = json.loads((out / "manifest.json").read_text())["created"]
