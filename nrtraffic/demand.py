@@ -52,6 +52,14 @@ class Demand:
         self.file_routes: dict[str, tuple[str, ...]] = {}  # a route file's route -> its edges, whole
         self.notes: list[str] = []  # what the run does differently from the demand as given (summary warnings)
         self._departures: list[tuple] | None = None
+        if sc.general.sumocfg:
+            from nrtraffic.scenario import sumocfg_unused
+
+            unused = sumocfg_unused(sc.base_dir / sc.general.sumocfg)
+            if unused:
+                self.notes.append(f"scenario.sumocfg: the run takes its network, route files, begin and end; its "
+                                  f"{', '.join(unused)} are not used (SUMO's settings are the [sumo] keys and "
+                                  "sumo.extra_args)")
 
     @classmethod
     def of(cls, sc, seed: int | None = None, duration_s: float | None = None, network=None) -> "Demand":

@@ -771,6 +771,24 @@ def _from_sumocfg(data: dict, base_dir: Path, allow_outside: bool) -> None:
             sc["duration_s"] = max(t - float(sc.get("begin_s", 0.0)), 0.0)
 
 
+# what a run takes from a ``scenario.sumocfg`` (:func:`_from_sumocfg`), by SUMO's long and short names
+SUMOCFG_TAKEN = frozenset({"net-file", "n", "route-files", "r", "begin", "b", "end", "e"})
+
+
+def sumocfg_unused(cfg: Path) -> list[str]:
+    """The options of the SUMO configuration ``cfg`` that a run does not take from it (all but
+    :data:`SUMOCFG_TAKEN`): its additional files, processing and output options. [] where it cannot
+    be read (the scenario check says why)."""
+    import xml.etree.ElementTree as ET
+
+    try:
+        root = ET.parse(cfg).getroot()
+    except (OSError, ET.ParseError):
+        return []
+    return sorted({el.tag for section in root for el in section if isinstance(el.tag, str)
+                   and el.get("value") is not None and el.tag not in SUMOCFG_TAKEN})
+
+
 def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...] = (),
               allow_outside: bool = False) -> Scenario:
     """Validate a parsed scenario table (plus ``section.key=value`` overrides). The network must lie

@@ -187,7 +187,11 @@ def test_a_sumocfg_gives_the_network_route_files_begin_and_end(tmp_path):
     <input>
         <net-file value="city.net.xml"/>
         <route-files value="defs.rou.xml,cars.rou.xml"/>
+        <additional-files value="detectors.add.xml"/>
     </input>
+    <processing>
+        <time-to-teleport value="-1"/>
+    </processing>
     <time>
         <begin value="25200"/>
         <end value="28800"/>
@@ -208,6 +212,9 @@ def test_a_sumocfg_gives_the_network_route_files_begin_and_end(tmp_path):
     assert dep["a"][1] == 10.0 and dep["b"][1] == 30.0
     assert dem.route_edges(dep["a"][0]) == ("N1_J1", "J1_J2", "J2_S2")
     assert dem.itineraries[dep["b"][0]] == ("W_J1.straight", "J1_J2.straight", "J2_J3.straight")
+    # what it does not take is said (a summary warning), not dropped in silence
+    assert any(n.startswith("scenario.sumocfg:") and "additional-files, time-to-teleport are not used" in n
+               for n in dem.notes), dem.notes
 
 
 @pytest.mark.parametrize("begin, end, message", [
