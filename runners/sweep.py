@@ -204,6 +204,7 @@ def plan(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]]
     first, so a bad key, value or demand stops the sweep before any run starts, with the scenario
     loader's message."""
     from nrtraffic import scenario
+    from nrtraffic.sumo.network import NetworkError
     from runners.single import check, check_demand
 
     keys = [k for k, _ in grid]
@@ -211,9 +212,14 @@ def plan(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]]
     for values in itertools.product(*[v for _, v in grid]):
         point = tuple(zip(keys, values))
         ov = tuple(overrides) + tuple(f"{k}={v}" for k, v in point)
-        sc = scenario.load(scenario_path, list(ov), allow_outside=allow_outside)
-        check(sc)
-        check_demand(sc, seeds[0], duration_s)  # (the demand's errors do not depend on the seed)
+        try:
+            sc = scenario.load(scenario_path, list(ov), allow_outside=allow_outside)
+            check(sc)
+            check_demand(sc, seeds[0], duration_s)  # (the demand's errors do not depend on the seed)
+        except (scenario.ScenarioError, NetworkError) as exc:
+            if not (point and (jobs or any(k in str(exc) for k in keys))):
+                raise  # (an error of every point, the first one's, says nothing of the grid)
+            raise type(exc)(f"at the grid point {', '.join(f'{k}={v}' for k, v in point)}: {exc}") from None
         if any(c != NRTRAFFIC for c in controls) and not sc.controlled_junctions():
             raise SweepError("--baseline needs a scenario with a [junction]")
         config = sc.to_dict()
