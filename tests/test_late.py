@@ -72,3 +72,62 @@ depart_speed_mps = 13.4
     assert c["replans"] == 0 and abs(c["t_merge_actual_s"] - c["t_merge_planned_s"]) < 0.3
     assert res.summary["collisions"] == 0 and res.summary["collisions_geometric"] == 0
 
+
+
+def test_a_car_does_not_enter_its_merging_zone_while_its_exit_is_queued_up_to_it(tmp_path):
+    """Don't block the box. cross4 with no random demand: a SUMO-driven car crosses from the north
+    and stands for 20 s on S_out, its front 6 m past the merging zone's exit, its rear 1.2 m past
+    it. A controlled car behind it on the same movement, planned to cross while it stands, would
+    enter and stand in the merging zone, in the way of the crossing movements (it did, for 15 s).
+    It stops at the merging-zone entry instead, sets off on a new start after the car ahead has
+    gone, and the car crossing from the east is undisturbed. No collision."""
+    import json
+
+    import pandas as pd
+    from conftest import copy_scenario
+
+    v, zone_m, cg_front = 13.4, 400.0, 2.4  # the paper car: 4.8 m, centre of gravity halfway
+    d = copy_scenario("cross4", tmp_path / "probe", "rate_veh_h = 400.0", "rate_veh_h = 0.0\nmean_headway_s = 0.0",
+                      "")
+    probe = run_scenario(scenario.load(d / "scenario.toml", ["scenario.duration_s=1.0", "outputs.warmup_s=0.0"]),
+                         tmp_path / "probe_run")
+    mv = json.loads((probe.run_dir / "movements.json").read_text())["movements"]["N_in.straight"]
+    # departing with its front 4.8 m down N_in (SUMO's "base"), at v, braking to a stand in 3 s
+    t_brake = (mv["merge_exit_m"] + 6.0 - 4.8 - v * 1.5) / v
+    t_go = t_brake + 23.0
+    extra = f"""
+[[vehicles]]
+id = "stopper"
+approach = "N_in.straight"
+depart_s = 0.0
+depart_speed_mps = {v}
+controlled = false
+speed_profile = [[0.0, {v}], [{t_brake:.3f}, {v}], [{t_brake + 3:.3f}, 0.0], [{t_go:.3f}, 0.0], [{t_go + 4:.3f}, {v}], [300.0, {v}]]
+
+[[vehicles]]
+id = "behind"
+approach = "N_in.straight"
+depart_s = 5.0
+depart_speed_mps = {v}
+
+[[vehicles]]
+id = "cross"
+approach = "E_in.straight"
+depart_s = 12.0
+depart_speed_mps = {v}
+"""
+    d = copy_scenario("cross4", tmp_path / "scen", "rate_veh_h = 400.0", "rate_veh_h = 0.0\nmean_headway_s = 0.0",
+                      extra)
+    res = run_scenario(scenario.load(d / "scenario.toml", ["scenario.duration_s=100.0", "outputs.warmup_s=0.0"]),
+                       tmp_path / "run")
+    traj = pd.read_parquet(res.run_dir / "trajectories.parquet")
+    b = traj[traj.vehicle_id == "behind"]
+    standing = b[b.v_l < 0.3]
+    assert len(standing), "it had to wait for the car ahead"
+    # s_m: its centre of gravity from the control-zone entry; the merging zone starts zone_m on
+    assert (standing.s_m + cg_front <= zone_m + 0.5).all(), standing.s_m.max()
+    veh = res.vehicles.set_index("vehicle_id")
+    assert veh.loc["behind", "t_merge_actual_s"] > t_go and veh.loc["behind", "replans"] >= 1
+    c = veh.loc["cross"]
+    assert c["replans"] == 0 and abs(c["t_merge_actual_s"] - c["t_merge_planned_s"]) < 0.3
+    assert res.summary["collisions"] == 0 and res.summary["collisions_geometric"] == 0

@@ -24,7 +24,7 @@ import numpy as np
 
 from nrtraffic.control import batch as kb
 from nrtraffic.control.table import N_PROFILE_SEG
-from nrtraffic.junction import humans
+from nrtraffic.junction import exits, humans
 from nrtraffic.lifecycle import State, VehicleRecord
 from nrtraffic.planning.coordinator import Assignment, Request, ScheduleInfeasible
 from nrtraffic.planning.crossing import CrossingBounds
@@ -425,23 +425,39 @@ class Admission:
         from_rest`, the plan the kernel will track), its occupancy of each conflict area bounded
         with ``FROM_REST_SLACK_S`` each side."""
         st = self.st
+        self._reserve_start(vid)
+        st.life.move(vid, State.STARTING)
+        st.sumo.hold_speed(vid, 0.0)  # it stands where its start was reserved from until the start
+        st.sumo.colour(vid, "held")
+
+    def _reserve_start(self, vid: str) -> None:
+        st = self.st
         rec = st.records[vid]
         mv = st.paths[rec.movement]
         a, v_c = st.sc.planning.u_max_mps2, min(mv.v_limit, st.sc.planning.v_max_mps)
         humans.reserve(st, vid, CrossingBounds(a, a, v_c, v_c, FROM_REST_SLACK_S))
         rec.profile_kind = "from_rest"
-        st.life.move(vid, State.STARTING)
-        st.sumo.hold_speed(vid, 0.0)  # it stands where its start was reserved from until the start
-        st.sumo.colour(vid, "held")
 
     def start(self) -> None:
-        """Controlled vehicles whose reserved start from rest has come: the kernel takes them over."""
+        """Controlled vehicles whose reserved start from rest has come: the kernel takes them over.
+        One whose exit is queued up to its merging zone (:mod:`~nrtraffic.junction.exits`) gives
+        up its start and waits where it stands; once the exit is clear its start is reserved
+        again."""
         st = self.st
         if not st.life.count(State.STARTING):
             return
         for vid in st.life.members(State.STARTING):
             rec = st.records[vid]
+            if math.isinf(rec.t_release):  # waiting for room past its merging zone
+                if vid in st.snap.row and exits.blocked(st, vid) is None:
+                    self._reserve_start(vid)
+                continue
             if st.t < rec.t_release - 1e-9:
+                continue
+            if vid in st.snap.row and exits.blocked(st, vid) is not None:
+                st.junctions[rec.junction].coord.cancel(vid)
+                rec.t_release = math.inf
+                rec.replans += 1
                 continue
             got = self.request(vid)
             if got is None:  # no longer seen on its path (not expected)

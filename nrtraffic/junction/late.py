@@ -10,7 +10,8 @@ merging zone later than reserved, into the windows of the vehicles crossing its 
 
 Each step, a controlled vehicle still before its merging zone is *late* when even its fastest entry
 from now (the planning's ``u_max_mps2`` from its speed, up to ``v_max_mps``) comes more than half
-the conflict margin after ``t_merge``. Then:
+the conflict margin after ``t_merge``; and so is one within :data:`EXIT_CHECK_M` of its merging
+zone whose exit is queued up to the zone (:mod:`nrtraffic.junction.exits`). Then:
 
 - its merging-zone entry is closed to it: a standing obstacle for the longitudinal barrier, so that
   it stops with its front bumper at the entry (where it can still stop there at the barrier's
@@ -31,8 +32,10 @@ import math
 import numpy as np
 
 from nrtraffic.control import batch as kb
+from nrtraffic.junction import exits
 from nrtraffic.planning.crossing import travel_times
 
+EXIT_CHECK_M = 60.0  # a controlled vehicle this near its merging zone stops before it where its exit is queued [m]
 STANDING_MPS = 0.1  # below this speed a late vehicle stands, and its start is reserved again [m/s]
 
 
@@ -69,6 +72,10 @@ class LateGuard:
             return
         s, v = ctl.out[:, kb.OUT_S], np.hypot(ctl.X[:, 2], ctl.X[:, 3])
         late = self._late(s, v)
+        near = (s < ctl.s_zone[:, 0]) & (ctl.s_zone[:, 0] - s <= EXIT_CHECK_M) & ~late
+        for i in np.flatnonzero(near).tolist():  # (don't block the box: junction.exits)
+            if ctl.ids[i] in st.snap.row and exits.blocked(st, ctl.ids[i]) is not None:
+                late[i] = True
         if not late.any():
             return
         cg = st.params.cg_to_front

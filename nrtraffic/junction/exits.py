@@ -1,0 +1,77 @@
+"""Don't block the box: no controlled vehicle enters its merging zone while its exit road is
+queued up to the zone.
+
+Where a queue from the next junction reaches back to a merging zone (a short link past
+capacity), a vehicle that enters on its plan finds, only once inside, a standing car just beyond
+the zone on its exit lane, and stops in the zone, in the way of the movements that cross it.
+
+A movement's exit is *blocked* for a vehicle when a vehicle past the merging zone's exit, on the
+movement's lanes or beside them on the same road, stands or crawls (slower than
+:data:`QUEUE_MPS`), or brakes (harder than :data:`BRAKING_MPS2`) to a stop, where its rear leaves
+too little room between it and the exit for the vehicle and every vehicle ahead of it on its path:
+a body length and the barrier's standstill gap each, and :data:`ROOM_M` to spare. A controlled
+vehicle about to enter (:class:`~nrtraffic.junction.late.LateGuard`) stops at the entry instead,
+and has its start from rest reserved again; a reserved start from rest waits until the exit is
+clear (:meth:`~nrtraffic.junction.admission.Admission.start`).
+"""
+
+from __future__ import annotations
+
+QUEUE_MPS = 2.0  # a vehicle slower than this past a merging zone is a queue [m/s]
+BRAKING_MPS2 = 0.5  # ... and one decelerating harder than this stops where its deceleration takes it [m/s^2]
+ROOM_M = 3.0  # room a vehicle needs past its merging zone beyond its body and the standstill gap [m]
+
+
+def _edge(lane: str) -> str:
+    return lane.rsplit("_", 1)[0]
+
+
+def _on_edges(st) -> dict[str, list[int]]:
+    """The snapshot's rows by edge, made once per step."""
+    cache = getattr(st, "_exit_rows", None)
+    if cache is not None and cache[0] is st.snap:
+        return cache[1]
+    rows: dict[str, list[int]] = {}
+    for k, lane in enumerate(st.snap.lane):
+        rows.setdefault(_edge(lane), []).append(k)
+    st._exit_rows = (st.snap, rows)
+    return rows
+
+
+def blocked(st, vid: str) -> str | None:
+    """The vehicle that blocks ``vid``'s exit (the module's docstring), or None. ``vid`` is on its
+    movement's path before or at its merging zone; vehicles behind it do not count, and each
+    vehicle between it and the queue on its path needs its own room. On the roads past the junction
+    every lane counts (a car queued on the next lane changes into this one)."""
+    rec = st.records[vid]
+    mv = st.paths[rec.movement]
+    s_self = st.cg_on_path(vid)
+    if s_self is None:
+        return None
+    body = st.params.length + st.sc.barriers.min_gap_m  # room a car takes in a queue [m]
+    rows = _on_edges(st)
+    snap = st.snap
+    ahead, queue = [], []  # on its own lanes ahead of it; standing or stopping past the exit
+    for lane in mv.lanes:
+        off, scale = mv.lane_offset[lane]
+        internal = lane.startswith(":")
+        for k in rows.get(lane if internal else _edge(lane), ()):
+            if snap.ids[k] == vid or (internal and snap.lane[k] != lane):
+                continue
+            s_front = off + float(snap.lane_pos[k]) * scale
+            if s_front <= s_self:
+                continue
+            if snap.lane[k] == lane:
+                ahead.append(s_front)
+            v, a = float(snap.speed[k]), float(snap.accel[k])
+            if s_front <= mv.s_exit:
+                continue
+            if v < QUEUE_MPS:
+                queue.append((s_front, s_front, k))
+            elif a < -BRAKING_MPS2:
+                queue.append((s_front, s_front + v * v / (-2.0 * a), k))
+    for s_front, s_stop, k in sorted(queue):
+        between = sum(1 for s in ahead if s < s_front)
+        if s_stop - st.params.length - mv.s_exit < (between + 1) * body + ROOM_M:
+            return snap.ids[k]
+    return None
