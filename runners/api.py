@@ -42,10 +42,11 @@ def usable_path(path: Path) -> None:
                           "(255 bytes a name, about 4000 the whole path); choose a shorter one")
     if path.exists() and not path.is_dir():
         raise OutputError(f"--out {path}: exists and is not a folder")
-    odd = sorted({c for c in str(path.absolute()) if c in SUMO_PATH_CHARS})
+    odd = sorted({c for c in str(path.absolute()) if c in SUMO_PATH_CHARS or not c.isprintable()})
     if odd:
         raise OutputError(f"--out {path}: its path holds {' '.join(repr(c) for c in odd)}, which SUMO misreads in a "
-                          "file name (a list separator, a host:port, a quote); choose a folder without them")
+                          "file name (a list separator, a host:port, a quote, a line break or another control character); "
+                          "choose a folder without them")
 
 
 def writable_dir(path: Path) -> None:
@@ -78,7 +79,7 @@ def claim(out: Path, sc, seed, duration, control: str, force: bool) -> None:
 
     check(sc)
     check_demand(sc, seed, duration)
-    new = [p for p in (Path(out).absolute(), *Path(out).absolute().parents) if not p.exists()]
+    new = [p for p in (Path(out).absolute(), *Path(out).absolute().parents) if not os.path.lexists(p)]
     writable_dir(out)
     try:
         claim_run_dir(out, sc, seed, duration, control, force)

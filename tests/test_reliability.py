@@ -812,10 +812,11 @@ def test_an_out_name_too_long_for_the_file_system_is_refused_before_anything_run
     assert "longer than the file system takes" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("name", ["with,comma", "col:on", "q'uote"])
+@pytest.mark.parametrize("name", ["with,comma", "col:on", "q'uote", "new\nline", "tab\there"])
 def test_an_out_path_sumo_would_misread_is_refused(tmp_path, capsys, name):
     """SUMO reads a comma in a file name as a list separator and host:port as a socket; a quote
-    failed it too: exit 2 before anything is written, for a run and for a sweep."""
+    failed it too, and a line break (SUMO could not open its outputs): exit 2 before anything is
+    written, for a run and for a sweep."""
     out = tmp_path / name
     flags = ["--duration", "5", "--set", "outputs.warmup_s=0", "--no-progress"]
     assert main(["run", str(CROSS4), "--out", str(out), *flags]) == 2
