@@ -1151,16 +1151,16 @@ def record_tables(out: Path, written: bool, planned=()) -> None:
     """The sweep's manifest in ``out`` (``manifest.json``: what was there before, what it created,
     :func:`~runners.single.read_manifest`): begun before the runs (``written`` False; a new one
     lists the folder's top level as there before), given the names of the tables and figures just
-    before they are written (``planned``), then, once written, listing every top-level name it
-    created. :func:`check_out` lets a resume write only over those."""
+    before they are written (``planned``), then, once written, listing the top-level names it
+    created that are there (no planned name it did not write). :func:`check_out` lets a resume write only over those."""
     from runners.single import MANIFEST, _write_json, read_manifest
 
     before = sorted(p.name for p in out.iterdir() if p.name != MANIFEST)
     m = read_manifest(out, sweep=True) or {"sweep": 1, "preexisting": before, "created": []}
     m["created"] = sorted(set(m["created"]) | (set(planned) - set(m["preexisting"])))
-    if written:
+    if written:  # (only what it did write: a name it planned and did not write is not claimed)
         now = {p.name for p in out.iterdir()} - {MANIFEST, MANIFEST + ".tmp"}
-        m["created"] = sorted((now - set(m["preexisting"])) | set(m["created"]))
+        m["created"] = sorted(now - set(m["preexisting"]))
     _write_json(out / MANIFEST, m)
 
 

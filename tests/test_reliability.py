@@ -857,6 +857,8 @@ def test_a_sweep_resumes_only_over_tables_it_wrote(tmp_path, capsys):
     assert main(["sweep", str(CROSS4), "--out", str(out), *flags]) == 0
     created = json.loads((out / "manifest.json").read_text())["created"]
     assert {"sweep.csv", "sweep.md", "report.html", "runs"} <= set(created)
+    # tables it did not write (no baseline: no side-by-side tables; no human drivers) are not claimed
+    assert not {"sweep_movements.csv", "sweep_approaches.csv", "drivers.png"} & set(created)
     (out / "sweep.md").write_text("stale")
     assert main(["sweep", str(CROSS4), "--out", str(out), *flags]) == 0  # (a resume: its tables again)
     assert (out / "sweep.md").read_text() != "stale"
@@ -864,6 +866,12 @@ def test_a_sweep_resumes_only_over_tables_it_wrote(tmp_path, capsys):
     capsys.readouterr()
     assert main(["sweep", str(CROSS4), "--out", str(out), *flags]) == 2
     assert "notes.txt" in capsys.readouterr().err and (out / "notes.txt").read_text() == "mine"
+    # nor a file of the user's named like a table it did not write, for a resume that would write it
+    (out / "notes.txt").unlink()
+    (out / "sweep_movements.csv").write_text("mine")
+    assert main(["sweep", str(CROSS4), "--out", str(out), *flags, "--baseline", "priority"]) == 2
+    assert "sweep_movements.csv" in capsys.readouterr().err
+    assert (out / "sweep_movements.csv").read_text() == "mine"
 
 
 def test_a_sweep_stopped_while_it_writes_its_tables_resumes(tmp_path, monkeypatch):
