@@ -511,16 +511,18 @@ _ROUTE_CASES = {
     # a flow by period with no end, in an open-ended run (--duration 0 in the test): terabytes of times
     "huge_flow_open": ('<flow id="x" route="r" begin="0" end="1e9" period="0.001"/><route id="r" edges="W_in E_out"/>',
                        "makes more than the 1000000 vehicles one flow may have in the run"),
-    # a flow by period with no end, in an open-ended run (--duration 0): terabytes of departure times
-    "huge_flow_open": ('<flow id="x" route="r" begin="0" end="1e9" period="0.001"/><route id="r" edges="W_in E_out"/>',
-                       "makes more than the 1000000 vehicles one flow may have in the run"),
     # flows SUMO refuses, taken silently (one rate of two used, or the flow dropped)
     "two_rates": ('<flow id="x" route="r" begin="0" end="100" period="1" vehsPerHour="100"/><route id="r" '
                   'edges="W_in E_out"/>', "gives both period and vehsPerHour; give one rate"),
     "negative_number": ('<flow id="x" route="r" begin="0" end="100" number="-3"/><route id="r" edges="W_in E_out"/>'
                         '<vehicle id="v" route="r" depart="1"/>', "number=-3 is negative"),
     "exp_negative": ('<flow id="x" route="r" begin="0" end="100" period="exp(-1)"/><route id="r" edges="W_in E_out"/>'
-                     '<vehicle id="v" route="r" depart="1"/>', "the rate of exp(RATE) must be > 0"),
+                     '<vehicle id="v" route="r" depart="1"/>', "the rate of exp(RATE) must be a number > 0"),
+    # trips and flows by from/to go to duarouter, which hung on these rates: checked first
+    "exp_nan_trip": ('<flow id="x" from="W_in" to="E_out" begin="0" end="20" period="exp(nan)"/>',
+                     "<flow id='x'>: period='exp(nan)': the rate of exp(RATE) must be a number > 0"),
+    "exp_tiny_trip": ('<flow id="x" from="W_in" to="E_out" begin="0" end="20" period="exp(1e-300)"/>',
+                      "a rate below 1e-09 per second makes no vehicle in any run"),
     "huge_flow_route": ('<flow id="x" route="r" begin="0" end="100" number="1000000000"/><route id="r" edges="W_in E_out"/>',
                         "number=1000000000 is more than the 1000000 vehicles one flow may have"),
     "unknown_edges": ('<trip id="x" depart="1" from="W_in" to="Nowhere_out"/>', "The edge 'Nowhere_out' within the route for trip 'x' is not known"),

@@ -116,6 +116,24 @@ def _flow_size(el, end: float | None = None) -> float:
     return 0.0
 
 
+MIN_EXP_RATE = 1e-9  # the lowest rate of a flow's exp(RATE) [1/s]: one vehicle in about 30 years (duarouter hangs on 1e-100)
+
+
+def _exp_rate(el, where: str) -> float:
+    """The rate [1/s] of a flow's ``period="exp(RATE)"``, checked: a finite number of at least
+    :data:`MIN_EXP_RATE` (duarouter hangs on an infinite, NaN or vanishing rate)."""
+    try:
+        rate = float(el.get("period").strip()[4:-1])
+    except ValueError:
+        raise DemandFileError(f"{where}: period={el.get('period')!r} is not exp(RATE)") from None
+    if not (rate > 0 and math.isfinite(rate)):
+        raise DemandFileError(f"{where}: period={el.get('period')!r}: the rate of exp(RATE) must be a number > 0")
+    if rate < MIN_EXP_RATE:
+        raise DemandFileError(f"{where}: period={el.get('period')!r}: a rate below {MIN_EXP_RATE:g} per second makes no "
+                              "vehicle in any run: leave the flow out")
+    return rate
+
+
 def routed(path: Path, net_path: Path) -> Path:
     """``path``, or where it has trips or flows given by ``from``/``to`` (``via``), the same file with
     each routed by SUMO's ``duarouter`` on the network ``net_path`` (the fastest route at the edges'
@@ -131,6 +149,8 @@ def routed(path: Path, net_path: Path) -> Path:
     if not _unrouted(root):
         return path
     for el in root.iter("flow"):  # (duarouter writes every vehicle of a flow it routes: bounded first)
+        if el.get("period", "").strip().startswith("exp("):
+            _exp_rate(el, f"demand.sumo_routes {path.name}: <flow id={el.get('id')!r}>")
         n = _flow_size(el)
         if n > MAX_FLOW_VEHICLES:
             raise DemandFileError(f"demand.sumo_routes {path.name}: <flow id={el.get('id')!r}> makes {n:g} vehicles, "
@@ -311,12 +331,7 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
                 raise DemandFileError(f"{where}: number needs a finite end")
             times = [begin + k * (end - begin) / n for k in range(n)] if n > 0 else []
         elif el.get("period", "").startswith("exp("):
-            try:
-                rate = float(el.get("period")[4:-1])
-            except ValueError:
-                raise DemandFileError(f"{where}: period={el.get('period')!r} is not exp(RATE)") from None
-            if not rate > 0:
-                raise DemandFileError(f"{where}: period={el.get('period')!r}: the rate of exp(RATE) must be > 0")
+            rate = _exp_rate(el, where)
             t = begin
             while rate > 0:
                 t += rng.exponential(1.0 / rate)
