@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import numbers
 import os
 import re
 import threading
@@ -339,7 +340,13 @@ def sweep(scenario: str | Path, seeds: Iterable[int] | str, *, grid: Mapping[str
     """
     from runners import sweep as sweep_mod
 
-    seeds = sweep_mod.parse_seeds(seeds if isinstance(seeds, str) else ",".join(str(int(s)) for s in seeds))
+    if not isinstance(seeds, str):
+        seeds = list(seeds)
+        odd = [s for s in seeds if isinstance(s, bool) or not isinstance(s, numbers.Integral)]
+        if odd:  # (1.5 had been run as seed 1, True as seed 1)
+            raise sweep_mod.SweepError(f"seeds: {odd[0]!r} is not a whole number; give the seeds as integers")
+        seeds = ",".join(str(int(s)) for s in seeds)
+    seeds = sweep_mod.parse_seeds(seeds)
     points = []  # (not through the text of --grid: a list value, or a string with a comma, is one value)
     for k, values in (grid or {}).items():
         values = [values] if isinstance(values, str) or not isinstance(values, Iterable) else list(values)

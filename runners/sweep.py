@@ -147,13 +147,20 @@ def parse_grid(items: list[str]) -> list[tuple[str, list[str]]]:
             raise SweepError(f"--grid {item!r}: expected SECTION.KEY=V1,V2,...")
         if key in dict(grid):
             raise SweepError(f"--grid {key} is given twice")
+        grid.append((key, vals))
+    check_grid(grid)
+    return grid
+
+
+def check_grid(grid: list[tuple[str, list[str]]]) -> None:
+    """Refuse a grid over the seed, and a value given twice (``400`` and ``400.0``): one
+    configuration twice would count its runs as twice the samples."""
+    for key, vals in grid:
         if key in ("scenario.seed", "general.seed"):
             raise SweepError(f"--grid {key}: a sweep's seeds are --seeds (each run's seed); give them there")
         same = _same_values(vals)
-        if same:  # (one configuration twice would count its runs as twice the samples)
+        if same:
             raise SweepError(f"--grid {key}: {same[0]} and {same[1]} are the same value; give each once")
-        grid.append((key, vals))
-    return grid
 
 
 def _same_values(vals: list[str]) -> tuple[str, str] | None:
@@ -1184,6 +1191,7 @@ def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]
     if n > MAX_RUNS and not force:
         raise SweepError(f"the sweep has {n} runs, more than {MAX_RUNS}: narrow --seeds or --grid, or --force to "
                          "run them all")
+    check_grid(grid)
     check_out(Path(out))
     jobs = plan(scenario_path, seeds, grid, controls, out, duration_s, tuple(overrides), allow_outside=allow_outside)
     from runners.api import OutputError, writable_dir

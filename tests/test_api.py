@@ -132,3 +132,18 @@ def test_api_sweep_grid_values_are_kept_whole(tmp_path, monkeypatch):
                                        "scenario.description": ["a, b"]}, out=tmp_path / "s")
     assert seen["grid"] == [("sumo.extra_args", ['["--max-depart-delay", "300"]', "[]"]),
                             ("scenario.description", ["a, b"])]
+
+
+@pytest.mark.parametrize("seeds, grid, message", [
+    ([1.5], None, "1.5 is not a whole number"),  # (run as seed 1)
+    ([True], None, "True is not a whole number"),
+    ([1], {"demand.rate_veh_h": [300, 300.0]}, "300 and 300.0 are the same value"),  # (one point run twice)
+])
+def test_api_sweep_refuses_what_the_command_line_refuses(seeds, grid, message, tmp_path):
+    """``nrtraffic.sweep`` checks its seeds and grid as ``nrtraffic sweep`` does, before anything
+    runs or is written."""
+    from runners.sweep import SweepError
+
+    with pytest.raises(SweepError, match=re.escape(message)):
+        nrtraffic.sweep(CROSS4, seeds, grid=grid, duration_s=5, workers=1, out=tmp_path / "s")
+    assert not (tmp_path / "s").exists()
