@@ -317,6 +317,11 @@ def _scenario_copy(tmp_path, old=None, new=None, extra=""):
      "--scale: the run sets it itself (demand.scale)"),
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--max-num-vehicles", "0"]', "",
      "--max-num-vehicles: the run sets it itself"),
+    # collisions no longer checked, and a signalised baseline whose signals are off, both "ok"
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--ignore-accidents"]', "",
+     "--ignore-accidents: the run sets it itself (collisions are recorded)"),
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--tls.all-off"]', "",
+     "--tls.all-off: the run sets it itself (a signalised control keeps its signals on"),
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--threads", "0"]', "",
      "SUMO needs at least one thread"),
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--vehroute-output.exit-times"]', "",

@@ -312,6 +312,8 @@ RUN_SETS = {
     "lateral-resolution": "sumo.lateral_resolution_m",
     "time-to-teleport": "-1: no vehicle is teleported", "collision.action": "collisions are recorded",
     "collision.check-junctions": "collisions are recorded", "collision.mingap-factor": "collisions are recorded",
+    "ignore-accidents": "collisions are recorded", "collision.stoptime": "collisions are recorded",
+    "tls.all-off": "a signalised control keeps its signals on; compare with --junction priority or allway_stop",
     "no-step-log": "its own progress", "no-warnings": "its own messages", "duration-log.disable": "its own messages",
     "scale": "demand.scale", "random-depart-offset": "demand.depart_offset_s",
     "max-num-vehicles": "every vehicle of the demand runs",
