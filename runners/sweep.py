@@ -224,8 +224,8 @@ def plan(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]]
             check(sc)
             check_demand(sc, seeds[0], duration_s)  # (the demand's errors do not depend on the seed)
         except (scenario.ScenarioError, NetworkError) as exc:
-            if not (point and (jobs or any(k in str(exc) for k in keys))):
-                raise  # (an error of every point, the first one's, says nothing of the grid)
+            if not point:
+                raise
             raise type(exc)(f"at the grid point {', '.join(f'{k}={v}' for k, v in point)}: {exc}") from None
         if any(c != NRTRAFFIC for c in controls) and not sc.controlled_junctions():
             raise SweepError("--baseline needs a scenario with a [junction]")

@@ -911,6 +911,8 @@ def test_a_sweep_stopped_while_it_writes_its_tables_resumes(tmp_path, monkeypatc
     # a bad value at one grid point: the message says which point
     (["--grid", "demand.rate_veh_h=400,-5", "--set", "outputs.warmup_s=0"],
      "at the grid point demand.rate_veh_h=-5: "),
+    (["--grid", "demand.rate_veh_h=10,400", "--set", "outputs.warmup_s=0"],  # (no vehicle in 5 s at the first)
+     "at the grid point demand.rate_veh_h=10: "),
 ])
 def test_sweep_flags_that_would_count_a_run_twice_or_do_nothing_are_refused(flags, message, tmp_path, capsys):
     """The same configuration twice (two runs of one seed counted as two samples), a --baseline
