@@ -532,6 +532,8 @@ _ROUTE_CASES = {
                         "number=1000000000 is more than the 1000000 vehicles one flow may have"),
     "unknown_edges": ('<trip id="x" depart="1" from="W_in" to="Nowhere_out"/>', "The edge 'Nowhere_out' within the route for trip 'x' is not known"),
     "no_movement": ('<vehicle id="x" depart="1"><route edges="W_in"/></vehicle>', "uses no movement of the junction"),
+    "id_twice": ('<route id="r" edges="W_in E_out"/><vehicle id="a" route="r" depart="1"/>'
+                 '<vehicle id="a" route="r" depart="2"/>', "the vehicle id 'a' is given twice"),
 }
 
 

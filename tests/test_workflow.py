@@ -381,6 +381,12 @@ def test_sumo_demand_file_follows_sumos_flow_rules(tmp_path):
     assert abs((by["id"].str.startswith("d.")).sum() - 720) < 4 * math.sqrt(720)
     assert by.set_index("id").loc["t", "movement"] == "W_in.right" and by.set_index("id").loc["v", "t"] == 7.0
     assert (by.loc[~by["id"].isin(["b.0", "b.1", "b.2", "b.3"]), "v"] == 13.89).all()  # no departSpeed given
+    # SUMO's h:m:s form of a time (it had been refused as "not a number")
+    clock = _routes(tmp_path, """
+    <trip id="t1" depart="00:01:03.5" from="W_in" to="S_out"/>
+    <flow id="f" from="W_in" to="E_out" begin="1:00:00" end="1:00:10" period="5"/>""")
+    times = {vid: t for vid, _, t, *_ in read_sumo_demand(clock, _MOVES, np.random.default_rng(1), math.inf, 13.89)}
+    assert times == {"t1": 63.5, "f.0": 3600.0, "f.1": 3605.0}
     # the run's end cuts open-ended flows
     short = read_sumo_demand(p, _MOVES, np.random.default_rng(1), 100.0, 13.89)
     assert all(t < 100.0 for vid, _, t, *_ in short if vid.startswith(("a.", "c.", "d.")))

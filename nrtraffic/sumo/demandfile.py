@@ -19,6 +19,7 @@ import math
 import subprocess
 import tempfile
 import xml.etree.ElementTree as ET
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +41,13 @@ def _num(el, key: str, where: str, default=None) -> float:
             raise DemandFileError(f"{where}: needs {key}")
         return default
     try:
-        x = float(v)
+        if key in ("depart", "begin", "end") and ":" in v:  # (SUMO's [[[D:]H:]M:]S form of a time)
+            parts = v.strip().split(":")
+            if len(parts) > 4:
+                raise ValueError(v)
+            x = sum(float(p) * f for p, f in zip(reversed(parts), (1.0, 60.0, 3600.0, 86400.0)))
+        else:
+            x = float(v)
     except ValueError:
         if key == "depart" and v in ("triggered", "containerTriggered", "now", "split", "begin"):
             raise DemandFileError(f"{where}: depart={v!r}: the run takes departures in seconds only; give the "
@@ -360,7 +367,9 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
         if el.get("number") is not None and (el.get("period") is not None or el.get("vehsPerHour") is not None):
             times = times[:int(_num(el, "number", where))]
         out += [(f"{vid}.{k}", legs, float(t), v0, x0, edges, ln, kind) for k, t in enumerate(times)]
-    ids = [o[0] for o in out]
-    if len(set(ids)) != len(ids):
-        raise DemandFileError(f"demand.sumo_routes {label}: vehicle ids repeat")
+    twice = sorted(i for i, n in Counter(o[0] for o in out).items() if n > 1)
+    if twice:
+        more = f" and {len(twice) - 1} more" if len(twice) > 1 else ""
+        raise DemandFileError(f"demand.sumo_routes {label}: the vehicle id {twice[0]!r}{more} is given twice; "
+                              "give each vehicle its own id")
     return out
