@@ -196,11 +196,14 @@ class Sweep:
 # ------------------------------------------------------------------ operations
 def _toml(v) -> str:
     """A Python value as TOML text, for a ``section.key=value`` setting."""
-    if isinstance(v, bool):
+    import numpy as np
+
+    if isinstance(v, (bool, np.bool_)):
         return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
+    if isinstance(v, numbers.Integral):
+        return str(int(v))
+    if isinstance(v, numbers.Real):  # (a float, or numpy's)
+        v = float(v)
         return ("nan" if math.isnan(v) else ("inf" if v > 0 else "-inf")) if not math.isfinite(v) else repr(v)
     if isinstance(v, str):
         return json.dumps(v, ensure_ascii=False)
@@ -209,7 +212,10 @@ def _toml(v) -> str:
         return "{" + ", ".join(f"{key(str(k))} = {_toml(x)}" for k, x in v.items()) + "}"
     if isinstance(v, (list, tuple)):
         return "[" + ", ".join(_toml(x) for x in v) + "]"
-    raise TypeError(f"a setting's value must be a number, string, bool, list or table, not {type(v).__name__}")
+    from nrtraffic.scenario import ScenarioError
+
+    raise ScenarioError(f"a setting's value must be a number, string, bool, list or table, not {type(v).__name__} "
+                        f"({v!r})")
 
 
 def settings(overrides) -> list[str]:
@@ -305,10 +311,13 @@ def baseline(scenario: str | Path, junction: str, *, seed: int | None = None, du
     ``priority``, ``allway_stop``, ``right_before_left``. The other parameters and the result are
     those of :func:`run`."""
     from nrtraffic import scenario as scenario_mod
+    from nrtraffic.sumo.netbuild import BASELINES
     from runners.baseline import run_baseline
 
     sc = scenario_mod.load(scenario, settings(overrides), allow_outside=allow_outside)
     seed, duration_s = _seed_duration(sc, seed, duration_s)
+    if junction not in BASELINES:  # (checked before the run folder is made)
+        raise scenario_mod.ScenarioError(f"junction={junction!r}: one of {', '.join(BASELINES)}")
     out = _out(out, f"{slug(sc.general.name)}-seed{seed}-{junction}")
     claim(out, sc, seed, duration_s, f"sumo_{junction}", force)
     run_baseline(sc, junction, out, seed=seed, duration_s=duration_s, progress=progress, report=report)

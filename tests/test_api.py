@@ -147,3 +147,24 @@ def test_api_sweep_refuses_what_the_command_line_refuses(seeds, grid, message, t
     with pytest.raises(SweepError, match=re.escape(message)):
         nrtraffic.sweep(CROSS4, seeds, grid=grid, duration_s=5, workers=1, out=tmp_path / "s")
     assert not (tmp_path / "s").exists()
+
+
+def test_api_values_are_checked_before_anything_is_written(tmp_path):
+    """A numpy number is a number; a value of no setting's type, an unknown junction and a
+    fractional number of workers are refused before any folder is made (a raw TypeError had come
+    out of the run, and the folders stayed)."""
+    import numpy as np
+
+    from runners import api
+    from runners.sweep import SweepError
+
+    assert api.settings({"demand.rate_veh_h": np.float64(300), "demand.max_vehicles": np.int64(5),
+                         "barriers.lateral": np.bool_(False)}) == [
+        "demand.rate_veh_h=300.0", "demand.max_vehicles=5", "barriers.lateral=false"]
+    with pytest.raises(ScenarioError, match="must be a number, string, bool, list or table, not NoneType"):
+        nrtraffic.run(CROSS4, duration_s=5, overrides={"demand.rate_veh_h": None}, out=tmp_path / "a")
+    with pytest.raises(ScenarioError, match="junction='nope': one of"):
+        nrtraffic.baseline(CROSS4, "nope", duration_s=5, out=tmp_path / "b")
+    with pytest.raises(SweepError, match="workers=1.5: give a whole number"):
+        nrtraffic.sweep(CROSS4, [1], duration_s=5, workers=1.5, out=tmp_path / "c")
+    assert not any(tmp_path.iterdir())
