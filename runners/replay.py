@@ -9,7 +9,9 @@ precision:
 - ``summary.json``: every number except those of the wall clock (``wall_time_s``,
   ``real_time_factor``, ``wall_time_breakdown_s``) and the versions;
 - ``vehicles.csv``: the same vehicles; every number of every vehicle, and the text columns equal;
-- SUMO's ``tripinfo.xml`` and ``collisions.xml``: the same trips and collisions, attribute by attribute;
+- SUMO's ``tripinfo.xml``, ``collisions.xml`` and ``queues.xml``: the same trips, collisions and
+  detector intervals, attribute by attribute;
+- ``movements.json``: the junction's geometry as the run built it, every number;
 - ``trajectories.parquet``: the same log instants per vehicle; every number at every instant.
 
 NaN equals NaN (a figure that does not apply in both).
@@ -181,7 +183,8 @@ def compare_runs(recorded: Path, replayed: Path, rtol: float = RTOL, atol: float
         else:
             diffs += _compare_frames("sumo/routes.rou.xml", d_rec, d_new, ["id"], rtol, atol, limit)
     sumo_outputs = (("tripinfo.xml", "tripinfo", ["id"]),
-                    ("collisions.xml", "collision", ["time", "collider", "victim", "type"]))
+                    ("collisions.xml", "collision", ["time", "collider", "victim", "type"]),
+                    ("queues.xml", "interval", ["begin", "id"]))
     for name, tag, keys in sumo_outputs:
         x_rec, x_new = recorded / name, replayed / name
         if x_rec.is_file() != x_new.is_file():
@@ -195,7 +198,34 @@ def compare_runs(recorded: Path, replayed: Path, rtol: float = RTOL, atol: float
             elif len(a):
                 diffs += _compare_frames(name, a, b, [k for k in keys if k in a.columns and k in b.columns], rtol,
                                          atol, limit)
+    m_rec, m_new = recorded / "movements.json", replayed / "movements.json"
+    if m_rec.is_file() != m_new.is_file():
+        diffs.append(Difference("movements.json", "file", m_rec.is_file(), m_new.is_file()))
+    elif m_rec.is_file():  # (the junction's geometry as the run built it)
+        try:
+            a, b = json.loads(m_rec.read_text()), json.loads(m_new.read_text())
+        except ValueError as exc:
+            diffs.append(Difference("movements.json", "readable", False, f"{type(exc).__name__}: {exc}"))
+        else:
+            diffs += _compare_json("movements.json", "", a, b, rtol, atol)[:limit]
     return diffs
+
+
+def _compare_json(where: str, path: str, a, b, rtol: float, atol: float) -> list[Difference]:
+    """Every difference between two JSON values: numbers within the tolerance, the rest equal."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        if set(a) != set(b):
+            return [Difference(where, f"{path or '(top)'} keys", sorted(a), sorted(b))]
+        return [d for k in a for d in _compare_json(where, f"{path}.{k}" if path else str(k), a[k], b[k], rtol, atol)]
+    if isinstance(a, list) and isinstance(b, list):
+        if len(a) != len(b):
+            return [Difference(where, f"{path} length", len(a), len(b))]
+        return [d for i, (x, y) in enumerate(zip(a, b)) for d in _compare_json(where, f"{path}[{i}]", x, y, rtol, atol)]
+    numbers = (int, float)
+    if isinstance(a, numbers) and isinstance(b, numbers) and not isinstance(a, bool) and not isinstance(b, bool):
+        same = (math.isnan(a) and math.isnan(b)) or abs(b - a) <= atol + rtol * abs(a)
+        return [] if same else [Difference(where, path, a, b)]
+    return [] if a == b else [Difference(where, path, a, b)]
 
 
 def _elements(path: Path, tag: str) -> tuple[pd.DataFrame, bool]:

@@ -158,6 +158,8 @@ def test_a_recorded_table_whose_rows_repeat_their_keys_differs_rather_than_faili
     ("garbled", "collisions.xml"),
     ("empty_table", "movements.csv"),
     ("empty_routes", "sumo/routes.rou.xml"),
+    ("queues", "queues.xml"),
+    ("geometry", "movements.json"),
 ])
 def test_an_edited_movement_table_or_route_file_differs(tmp_path, capsys, edit, where):
     """The recorded movements.csv, the route file SUMO was given and SUMO's own outputs are
@@ -187,6 +189,13 @@ def test_an_edited_movement_table_or_route_file_differs(tmp_path, capsys, edit, 
         (run / "movements.csv").write_text("")
     elif edit == "empty_routes":  # (a traceback from the XML parser)
         (run / "sumo" / "routes.rou.xml").write_text("")
+    elif edit == "queues":  # (SUMO's detectors: it said "matches")
+        text = (run / "queues.xml").read_text()
+        (run / "queues.xml").write_text(text.replace('maxJamLengthInVehicles="0"', 'maxJamLengthInVehicles="9"', 1))
+    elif edit == "geometry":  # (the zones as the run built them: it said "matches")
+        text = (run / "movements.json").read_text()
+        (run / "movements.json").write_text(re.sub(r'"control_zone_start_m": [0-9.]+', '"control_zone_start_m": 905.0',
+                                                   text, count=1))
     else:  # (the golden run's cars are all still on their way at its end: a made-up finished trip)
         text = (run / "tripinfo.xml").read_text()
         end = text.rindex("</tripinfos>")
