@@ -82,6 +82,16 @@ def _labels(summaries: list[dict], dirs: list[Path]) -> list[str]:
     return [o if out.count(o) == 1 else f"{c} ({d})" for o, c, d in zip(out, controls, dirs)]
 
 
+def _layout(d: Path) -> tuple | None:
+    """The movements of a run (the names in its ``movements.json`` and their routes), or None where
+    it has none to read."""
+    try:
+        doc = json.loads((Path(d) / "movements.json").read_text())
+        return tuple(sorted((name, tuple(m.get("route", ()))) for name, m in doc["movements"].items()))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+
+
 def load(run_dirs: list[Path]) -> list[Run]:
     """The runs to compare: finished runs (status ok or gridlock) of one scenario, each once;
     :class:`CompareError` names the run directory and the fix otherwise."""
@@ -101,6 +111,12 @@ def load(run_dirs: list[Path]) -> list[Run]:
         other = next((d, s.get("scenario")) for d, s in zip(dirs, summaries) if s.get("scenario") != first)
         raise CompareError(f"{other[0]} is a run of scenario {other[1]!r}, {dirs[0]} of {first!r}: compare runs of "
                            "one scenario")
+    layouts = [(d, _layout(d)) for d in dirs]
+    known = [(d, lay) for d, lay in layouts if lay is not None]
+    other = next(((d, lay) for d, lay in known if lay != known[0][1]), None)
+    if other is not None:  # (one name, two networks: a copied scenario file)
+        raise CompareError(f"{other[0]} and {known[0][0]} are runs of scenario {names.pop()!r} on different junctions "
+                           "(their movements.json name other movements): compare runs of one scenario")
     runs = []
     for label, d, s in zip(_labels(summaries, dirs), dirs, summaries):
         try:

@@ -769,6 +769,9 @@ def _from_sumocfg(data: dict, base_dir: Path, allow_outside: bool) -> None:
             sc.setdefault("begin_s", t)
         elif "duration_s" not in sc and t >= 0:
             sc["duration_s"] = max(t - float(sc.get("begin_s", 0.0)), 0.0)
+            if sc["duration_s"] > MAX_DURATION_S:
+                raise ScenarioError(f"scenario.sumocfg {name}: <end value={v!r}> makes a run of {sc['duration_s']:g} s, "
+                                    f"longer than the longest run ({MAX_DURATION_S:g} s): give scenario.duration_s")
 
 
 # what a run takes from a ``scenario.sumocfg`` (:func:`_from_sumocfg`), by SUMO's long and short names

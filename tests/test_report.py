@@ -229,10 +229,15 @@ def test_compare_refuses_unfinished_runs_and_other_scenarios(cross4_pair, corrid
     (empty / "movements.csv").write_text("")
     shutil.copytree(nr, listed)
     (listed / "summary.json").write_text("[1, 2]")
+    elsewhere = tmp_path / "elsewhere"  # the same scenario name on another junction (a copied file)
+    shutil.copytree(nr, elsewhere)
+    doc = json.loads((elsewhere / "movements.json").read_text())
+    doc["movements"] = {f"{k}_other": v for k, v in doc["movements"].items()}
+    (elsewhere / "movements.json").write_text(json.dumps(doc))
     cases = [([nr, running], "not a finished run"), ([nr, tmp_path], "not a run directory"),
              ([nr, empty], "its tables cannot be read"), ([nr, listed], "not a run's summary"),
              ([nr, corridor_run], "compare runs of one scenario"), ([nr, nr], "given twice"),
-             ([nr], "at least two")]
+             ([nr], "at least two"), ([nr, elsewhere], "on different junctions")]
     for dirs, message in cases:
         capsys.readouterr()
         assert main(["compare", *map(str, dirs), "--out", str(tmp_path / "cmp")]) == 2

@@ -219,6 +219,7 @@ def test_a_sumocfg_gives_the_network_route_files_begin_and_end(tmp_path):
 
 @pytest.mark.parametrize("begin, end, message", [
     ("100", "40", "<end value='40'> is not after the begin (100 s)"),
+    ("0", "1e9", "<end value='1e9'> makes a run of 1e+09 s, longer than the longest run"),
     ("0", "nan", "<end value='nan'> is not a time of SUMO's clock"),
 ])
 def test_a_sumocfg_whose_end_is_not_after_its_begin_is_refused(tmp_path, begin, end, message):
