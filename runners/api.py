@@ -349,6 +349,7 @@ def sweep(scenario: str | Path, seeds: Iterable[int] | str, *, grid: Mapping[str
     """
     from runners import sweep as sweep_mod
 
+    _, duration_s = _seed_duration(None, 0, duration_s)  # (checked as run's; a seed of 0 stands in)
     if not isinstance(seeds, str):
         seeds = list(seeds)
         odd = [s for s in seeds if isinstance(s, bool) or not isinstance(s, numbers.Integral)]

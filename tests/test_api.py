@@ -165,6 +165,8 @@ def test_api_values_are_checked_before_anything_is_written(tmp_path):
         nrtraffic.run(CROSS4, duration_s=5, overrides={"demand.rate_veh_h": None}, out=tmp_path / "a")
     with pytest.raises(ScenarioError, match="junction='nope': one of"):
         nrtraffic.baseline(CROSS4, "nope", duration_s=5, out=tmp_path / "b")
+    with pytest.raises(ScenarioError, match="duration_s=nan: give seconds"):
+        nrtraffic.sweep(CROSS4, [1], duration_s=float("nan"), out=tmp_path / "d")
     with pytest.raises(SweepError, match="workers=1.5: give a whole number"):
         nrtraffic.sweep(CROSS4, [1], duration_s=5, workers=1.5, out=tmp_path / "c")
     assert not any(tmp_path.iterdir())
