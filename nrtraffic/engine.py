@@ -41,16 +41,15 @@ from nrtraffic.junction import Layout, build, humans
 from nrtraffic.junction.admission import Admission
 from nrtraffic.junction.late import LateGuard
 from nrtraffic.lifecycle import State
-from nrtraffic.limits import MAX_DURATION_S
 from nrtraffic.measure import LEADER_LOOKAHEAD_M
 from nrtraffic.planning.coordinator import Coordinator
 from nrtraffic.results import (RunFacts, RunResult, TrajectoryWriter, approach_table, movements_of, parse_queues,
                                read_tripinfo, round_frame, round_summary, run_summary, vehicle_table)
 from nrtraffic.state import RunState
+from nrtraffic.watchdog import Gridlock, OpenEnd, watch_junctions
 from nrtraffic.sumo.adapter import SumoSession, VehicleType, handover_tau_s, sumo_version, write_sumocfg
 from nrtraffic.sumo.network import NetworkError
 
-MOVING_MPS = 0.1  # a vehicle slower than this stands still (a run without a duration) [m/s]
 CHECKPOINT_WALL_S = 10.0  # wall time between checkpoints of the figures (``checkpoint``) [s]
 GUI_MARGIN_M = 50.0  # sumo-gui opens on the merging zones with this much road around them [m]
 # parts of the tick timed for ``wall_time_breakdown_s``: the compiled kernel (with the Python that
@@ -58,11 +57,6 @@ GUI_MARGIN_M = 50.0  # sumo-gui opens on the merging zones with this much road a
 # admission (coordinator; its rear-end QPs also as ``qp``), leader search, the own collision check,
 # and trajectory logging
 WALL_PHASES = ("kernel", "sumo_step", "sumo_io", "admission", "qp", "leaders", "collision_check", "logging")
-
-
-class Gridlock(RuntimeError):
-    """A junction made no progress: no vehicle left its merging zone for ``outputs.stall_s`` while
-    vehicles waited there."""
 
 
 def _interrupt_in(exc: BaseException) -> BaseException | None:
@@ -173,7 +167,7 @@ class Engine:
         self.collision_log: list[dict] = []  # first contact of each pair: time, ids, who saw it
         # wall time per part of the tick [s] (summary.json ``wall_time_breakdown_s``; benchmarks)
         self.wall_breakdown = dict.fromkeys(WALL_PHASES, 0.0)
-        self._still_since = 0.0  # (a run without a duration) since when no vehicle has moved [s]
+        self._open_end = OpenEnd()  # (a run without a duration) the watch that it can end
 
     @property
     def t(self) -> float:
@@ -310,9 +304,9 @@ class Engine:
                     break
                 now = self._tick(dt, step % log_every == 0, step % 10 == 0)
                 if step % 10 == 0:
-                    self._watch()
+                    watch_junctions(st, self.admission)
                     if self.duration <= 0:
-                        self._watch_open_end()
+                        self._open_end.watch(st)
                     stop = self.stop_requested() if self.stop_requested is not None else None
                     if stop:  # (a library the signal came into may have swallowed its interrupt)
                         raise SignalStop(stop)
@@ -384,50 +378,6 @@ class Engine:
                 self.collisions_sumo.add(pair)
                 self.collision_log.append({"t": sumo.time, "pair": list(pair), "source": f"sumo:{kind}"})
         return lap("sumo_step")
-
-    def _watch(self) -> None:
-        """The watchdog: raise :class:`Gridlock` when a junction has had vehicles waiting and none
-        leaving its merging zone for ``outputs.stall_s``, naming the junction, the waiting vehicles
-        and their movements."""
-        stall, st = self.sc.outputs.stall_s, self.st
-        if stall <= 0:
-            return
-        for j in st.junctions.values():
-            waiting = self.admission.waiting(j)
-            if j.exits != j.exits_seen or not waiting:
-                j.idle_since, j.exits_seen = st.t, j.exits
-                continue
-            if st.t - j.idle_since < stall:
-                continue
-            names = ", ".join(f"{v} ({st.records[v].movement}, {st.records[v].status})" for v in waiting[:12])
-            more = f" and {len(waiting) - 12} more" if len(waiting) > 12 else ""
-            raise Gridlock(f"junction {j.id or '(road)'}: no vehicle crossed for {st.t - j.idle_since:.0f} s "
-                           f"(outputs.stall_s = {stall:g}) while {len(waiting)} in its control zone waited to "
-                           f"cross: {names}{more}")
-
-    def _watch_open_end(self) -> None:
-        """A run without a duration (``--duration 0``: until every vehicle has left) that cannot
-        end: :class:`Gridlock` when every vehicle in the network has stood still for
-        ``outputs.stall_s`` (one parked outside every control zone holds the run for ever); a
-        failure when the clock reaches the longest run accepted, :data:`~nrtraffic.limits.MAX_DURATION_S`."""
-        st, stall = self.st, self.sc.outputs.stall_s
-        if st.t >= MAX_DURATION_S:
-            raise RuntimeError(f"--duration 0 runs until every vehicle has left, and {st.sumo.pending()} had not after "
-                               f"{MAX_DURATION_S:g} s, the longest run: give a duration")
-        moving = bool((st.snap.speed > MOVING_MPS).any())
-        if not moving:  # (those forgotten outside every zone are not in the snapshot: asked one by one;
-            # an empty network waits for departures to come)
-            ids = st.sumo.vehicle_ids()
-            moving = not ids or any(st.sumo.speed(v) > MOVING_MPS for v in ids)
-        if moving or stall <= 0:
-            self._still_since = st.t
-            return
-        if st.t - self._still_since >= stall:
-            ids = st.sumo.vehicle_ids()
-            names = ", ".join(ids[:12]) + (f" and {len(ids) - 12} more" if len(ids) > 12 else "")
-            raise Gridlock(f"--duration 0 runs until every vehicle has left, but every vehicle in the network has "
-                           f"stood still for {st.t - self._still_since:.0f} s (outputs.stall_s = {stall:g}): {names}; "
-                           "give a duration, or let them drive on")
 
     # ------------------------------------------------------------------ what the tick composes
     def _push_and_release(self) -> None:

@@ -439,25 +439,14 @@ class Admission:
         rec.profile_kind = "from_rest"
 
     def start(self) -> None:
-        """Controlled vehicles whose reserved start from rest has come: the kernel takes them over.
-        One whose exit is queued up to its merging zone (:mod:`~nrtraffic.junction.exits`) gives
-        up its start and waits where it stands; once the exit is clear its start is reserved
-        again."""
+        """Controlled vehicles whose reserved start from rest has come: the kernel takes them over
+        (not while their exit is queued: :func:`~nrtraffic.junction.exits.wait_for_room`)."""
         st = self.st
         if not st.life.count(State.STARTING):
             return
         for vid in st.life.members(State.STARTING):
             rec = st.records[vid]
-            if math.isinf(rec.t_release):  # waiting for room past its merging zone
-                if vid in st.snap.row and exits.blocked(st, vid) is None:
-                    self._reserve_start(vid)
-                continue
-            if st.t < rec.t_release - 1e-9:
-                continue
-            if vid in st.snap.row and exits.blocked(st, vid) is not None:
-                st.junctions[rec.junction].coord.cancel(vid)
-                rec.t_release = math.inf
-                rec.replans += 1
+            if exits.wait_for_room(st, vid, self._reserve_start) or st.t < rec.t_release - 1e-9:
                 continue
             got = self.request(vid)
             if got is None:  # no longer seen on its path (not expected)

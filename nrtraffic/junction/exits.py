@@ -17,6 +17,8 @@ clear (:meth:`~nrtraffic.junction.admission.Admission.start`).
 
 from __future__ import annotations
 
+import math
+
 QUEUE_MPS = 2.0  # a vehicle slower than this past a merging zone is a queue [m/s]
 BRAKING_MPS2 = 0.5  # ... and one decelerating harder than this stops where its deceleration takes it [m/s^2]
 ROOM_M = 3.0  # room a vehicle needs past its merging zone beyond its body and the standstill gap [m]
@@ -75,3 +77,21 @@ def blocked(st, vid: str) -> str | None:
         if s_stop - st.params.length - mv.s_exit < (between + 1) * body + ROOM_M:
             return snap.ids[k]
     return None
+
+
+def wait_for_room(st, vid: str, reserve_start) -> bool:
+    """Whether a controlled vehicle whose start from rest is reserved waits for room past its
+    merging zone: one whose start has come while its exit is queued gives it up (its reservation
+    is cancelled) and stands; once the exit is clear, ``reserve_start(vid)`` reserves its start
+    again."""
+    rec = st.records[vid]
+    if math.isinf(rec.t_release):  # (waiting)
+        if vid in st.snap.row and blocked(st, vid) is None:
+            reserve_start(vid)
+        return True
+    if st.t >= rec.t_release - 1e-9 and vid in st.snap.row and blocked(st, vid) is not None:
+        st.junctions[rec.junction].coord.cancel(vid)
+        rec.t_release = math.inf
+        rec.replans += 1
+        return True
+    return False

@@ -1,0 +1,64 @@
+"""The watchdogs of a run: a junction that makes no progress, and a run without a duration that
+cannot end. Each raises :class:`Gridlock` (the run's status ``"gridlock"``), naming the vehicles."""
+
+from __future__ import annotations
+
+from nrtraffic.limits import MAX_DURATION_S
+
+MOVING_MPS = 0.1  # a vehicle slower than this stands still (a run without a duration) [m/s]
+
+
+class Gridlock(RuntimeError):
+    """A junction made no progress: no vehicle left its merging zone for ``outputs.stall_s`` while
+    vehicles waited there; or, in a run without a duration, no vehicle moved."""
+
+
+def watch_junctions(st, admission) -> None:
+    """Raise :class:`Gridlock` when a junction has had vehicles waiting and none leaving its
+    merging zone for ``outputs.stall_s``, naming the junction, the waiting vehicles and their
+    movements."""
+    stall = st.sc.outputs.stall_s
+    if stall <= 0:
+        return
+    for j in st.junctions.values():
+        waiting = admission.waiting(j)
+        if j.exits != j.exits_seen or not waiting:
+            j.idle_since, j.exits_seen = st.t, j.exits
+            continue
+        if st.t - j.idle_since < stall:
+            continue
+        names = ", ".join(f"{v} ({st.records[v].movement}, {st.records[v].status})" for v in waiting[:12])
+        more = f" and {len(waiting) - 12} more" if len(waiting) > 12 else ""
+        raise Gridlock(f"junction {j.id or '(road)'}: no vehicle crossed for {st.t - j.idle_since:.0f} s "
+                       f"(outputs.stall_s = {stall:g}) while {len(waiting)} in its control zone waited to "
+                       f"cross: {names}{more}")
+
+
+class OpenEnd:
+    """A run without a duration (``--duration 0``: until every vehicle has left) that cannot end:
+    :meth:`watch` raises :class:`Gridlock` when every vehicle in the network has stood still for
+    ``outputs.stall_s`` (one parked outside every control zone holds the run for ever), and fails
+    the run when the clock reaches the longest run accepted, :data:`~nrtraffic.limits.MAX_DURATION_S`."""
+
+    def __init__(self) -> None:
+        self.still_since = 0.0  # since when no vehicle has moved [s]
+
+    def watch(self, st) -> None:
+        stall = st.sc.outputs.stall_s
+        if st.t >= MAX_DURATION_S:
+            raise RuntimeError(f"--duration 0 runs until every vehicle has left, and {st.sumo.pending()} had not after "
+                               f"{MAX_DURATION_S:g} s, the longest run: give a duration")
+        moving = bool((st.snap.speed > MOVING_MPS).any())
+        if not moving:  # (those forgotten outside every zone are not in the snapshot: asked one by one;
+            # an empty network waits for departures to come)
+            ids = st.sumo.vehicle_ids()
+            moving = not ids or any(st.sumo.speed(v) > MOVING_MPS for v in ids)
+        if moving or stall <= 0:
+            self.still_since = st.t
+            return
+        if st.t - self.still_since >= stall:
+            ids = st.sumo.vehicle_ids()
+            names = ", ".join(ids[:12]) + (f" and {len(ids) - 12} more" if len(ids) > 12 else "")
+            raise Gridlock(f"--duration 0 runs until every vehicle has left, but every vehicle in the network has "
+                           f"stood still for {st.t - self.still_since:.0f} s (outputs.stall_s = {stall:g}): {names}; "
+                           "give a duration, or let them drive on")
