@@ -15,3 +15,12 @@ def sumo_id_problem(vid: str) -> str | None:
     if bad:
         return "SUMO takes no " + " or ".join(repr(c) for c in bad) + " in a vehicle id"
     return None
+
+
+def sumo_time(text: str) -> float:
+    """A time as SUMO reads one [s]: seconds, or ``[[[D:]H:]M:]S`` (``07:00:30``). Raises
+    ValueError where it is neither."""
+    parts = str(text).strip().split(":")
+    if len(parts) > 4:
+        raise ValueError(text)
+    return sum(float(x) * f for x, f in zip(reversed(parts), (1.0, 60.0, 3600.0, 86400.0)))

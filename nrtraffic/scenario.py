@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, get_type_hints
 
-from nrtraffic.limits import MAX_DURATION_S, MAX_SEED, sumo_id_problem  # noqa: F401  (re-exported)
+from nrtraffic.limits import MAX_DURATION_S, MAX_SEED, sumo_id_problem, sumo_time  # noqa: F401  (re-exported)
 from nrtraffic.planning.coordinator import CoordinatorSettings
 from nrtraffic.planning.profiles import PlanBounds
 from nrtraffic.vehicle.params import BicycleParams, preset
@@ -757,7 +757,7 @@ def _from_sumocfg(data: dict, base_dir: Path, allow_outside: bool) -> None:
         if v is None:
             continue
         try:
-            t = float(v) if ":" not in v else sum(float(x) * f for x, f in zip(reversed(v.split(":")), (1, 60, 3600, 86400)))
+            t = sumo_time(v)
         except ValueError:
             raise ScenarioError(f"scenario.sumocfg {name}: <{cfg_key} value={v!r}> is not a time") from None
         if not math.isfinite(t) or (t < 0 and not (cfg_key == "end" and t == -1)):  # (SUMO's end -1: none)

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nrtraffic.limits import sumo_id_problem
+from nrtraffic.limits import sumo_id_problem, sumo_time
 
 
 class DemandFileError(ValueError):
@@ -41,13 +41,7 @@ def _num(el, key: str, where: str, default=None) -> float:
             raise DemandFileError(f"{where}: needs {key}")
         return default
     try:
-        if key in ("depart", "begin", "end") and ":" in v:  # (SUMO's [[[D:]H:]M:]S form of a time)
-            parts = v.strip().split(":")
-            if len(parts) > 4:
-                raise ValueError(v)
-            x = sum(float(p) * f for p, f in zip(reversed(parts), (1.0, 60.0, 3600.0, 86400.0)))
-        else:
-            x = float(v)
+        x = sumo_time(v) if key in ("depart", "begin", "end") else float(v)  # (times also as h:m:s)
     except ValueError:
         if key == "depart" and v in ("triggered", "containerTriggered", "now", "split", "begin"):
             raise DemandFileError(f"{where}: depart={v!r}: the run takes departures in seconds only; give the "
@@ -340,7 +334,7 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
         elif el.get("period", "").startswith("exp("):
             rate = _exp_rate(el, where)
             t = begin
-            while rate > 0:
+            while True:
                 t += rng.exponential(1.0 / rate)
                 if t >= end:
                     break
