@@ -28,37 +28,27 @@ def _edge(lane: str) -> str:
     return lane.rsplit("_", 1)[0]
 
 
-def _on_edges(st) -> dict[str, list[int]]:
-    """The snapshot's rows by edge, made once per step."""
-    cache = getattr(st, "_exit_rows", None)
-    if cache is not None and cache[0] is st.snap:
-        return cache[1]
-    rows: dict[str, list[int]] = {}
-    for k, lane in enumerate(st.snap.lane):
-        rows.setdefault(_edge(lane), []).append(k)
-    st._exit_rows = (st.snap, rows)
-    return rows
-
-
 def blocked(st, vid: str) -> str | None:
     """The vehicle that blocks ``vid``'s exit (the module's docstring), or None. ``vid`` is on its
     movement's path before or at its merging zone; vehicles behind it do not count, and each
     vehicle between it and the queue on its path needs its own room. On the roads past the junction
-    every lane counts (a car queued on the next lane changes into this one)."""
+    every lane counts (a car queued on the next lane changes into this one); the junction's own
+    (internal) lanes are not searched."""
     rec = st.records[vid]
     mv = st.paths[rec.movement]
     s_self = st.cg_on_path(vid)
     if s_self is None:
         return None
     body = st.params.length + st.sc.barriers.min_gap_m  # room a car takes in a queue [m]
-    rows = _on_edges(st)
+    rows = st.snap.rows_by_edge
     snap = st.snap
     ahead, queue = [], []  # on its own lanes ahead of it; standing or stopping past the exit
     for lane in mv.lanes:
+        if lane.startswith(":"):  # (the junction's own lanes are not searched: a car inside it is not counted)
+            continue
         off, scale = mv.lane_offset[lane]
-        internal = lane.startswith(":")
-        for k in rows.get(lane if internal else _edge(lane), ()):
-            if snap.ids[k] == vid or (internal and snap.lane[k] != lane):
+        for k in rows.get(_edge(lane), ()):
+            if snap.ids[k] == vid:
                 continue
             s_front = off + float(snap.lane_pos[k]) * scale
             if s_front <= s_self:

@@ -13,6 +13,8 @@ about a third less (docs/performance.md). The true speed is set beside it (``set
 
 from __future__ import annotations
 
+import functools
+
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -76,6 +78,15 @@ class VehicleTable:
     speed: np.ndarray
     accel: np.ndarray
     row: dict
+
+    @functools.cached_property
+    def rows_by_edge(self) -> dict[str, list[int]]:
+        """The rows on each edge (a lane's id less its ``_<index>``; a junction's internal lanes
+        by their own ``:<junction>_<n>``), made once, when first asked."""
+        rows: dict[str, list[int]] = {}
+        for k, lane in enumerate(self.lane):
+            rows.setdefault(lane.rsplit("_", 1)[0], []).append(k)
+        return rows
 
 
 @dataclass(frozen=True)
