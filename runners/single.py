@@ -221,9 +221,9 @@ def run_file_names(sc: scenario_mod.Scenario) -> list[str]:
 
 # what a run writes at its end, only where its data has them: its figures and report
 REPORT_FILES = ("movements.png", "delays.png", "queues.png", "time_space.png", "arterial.png", "report.html")
-# what a run writes at each checkpoint (each under its temporary name first)
-TABLE_FILES = ("vehicles.csv", "movements.csv", "approaches.csv", "vehicles.csv.tmp", "movements.csv.tmp",
-               "approaches.csv.tmp")
+# what a run writes at each checkpoint, each under its temporary name first
+TABLES = ("vehicles.csv", "movements.csv", "approaches.csv")
+TABLE_FILES = (*TABLES, *(t + ".tmp" for t in TABLES))
 
 
 def begin_manifest(out: Path, planned=()) -> None:
@@ -471,7 +471,7 @@ def _write(result: RunResult, out: Path, final: bool = False) -> None:
     a table cannot be written (a full disk), summary.json still is, saying ``"status": "failed"``
     and why (in the space the earlier summary holds), and the OSError goes on."""
     try:
-        tables = ("vehicles.csv", "movements.csv", *(("approaches.csv",) if "approaches" in result.extra else ()))
+        tables = [t for t in TABLES if t != "approaches.csv" or "approaches" in result.extra]
         plan_manifest(out, [n for t in tables for n in (t, t + ".tmp")])
         write_vehicles(out / "vehicles.csv", result.vehicles)
         write_movements(out / "movements.csv", result)

@@ -137,7 +137,8 @@ def parse_seeds(text: str) -> list[int]:
 
 
 def parse_grid(items: list[str]) -> list[tuple[str, list[str]]]:
-    """``section.key=v1,v2,...`` (repeatable) -> [(key, [values])]; the points are their product."""
+    """``section.key=v1,v2,...`` (repeatable) -> [(key, [values])]; the points are their product
+    (their values are checked by :func:`study`, :func:`check_grid`)."""
     grid = []
     for item in items:
         key, sep, values = item.partition("=")
@@ -148,7 +149,6 @@ def parse_grid(items: list[str]) -> list[tuple[str, list[str]]]:
         if key in dict(grid):
             raise SweepError(f"--grid {key} is given twice")
         grid.append((key, vals))
-    check_grid(grid)
     return grid
 
 
