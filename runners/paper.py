@@ -37,24 +37,89 @@ def _fmt_cm(x):
     return "n/a" if x is None else f"{100 * x:.2f} cm"
 
 
+# the files each experiment writes at the top of its folder, beside its runs' folders
+CURVED_FILES = ("fig2_distance.png", "fig3_tracking_error.png", "fig4_acceleration.png", "paper_table.md",
+                "paper_results.json")
+CBF_FILES = ("fig5_speeds.png", "fig6_distance.png", "fig7_lateral_deviation.png", "fig8_tracking_error.png",
+             "fig9_acceleration.png", "fig10_steering.png", "fig_antiwindup.png", "paper_table.md",
+             "paper_results.json")
+
+
+def _run(sc, run_dir: Path, seed, progress: bool) -> dict:
+    """One run of an experiment into ``run_dir``, whose earlier run (:func:`claim_out` checked
+    that it holds nothing else) goes first; its summary."""
+    from runners.single import remove_run_files
+
+    if run_dir.is_dir():
+        remove_run_files(run_dir)
+    return run_scenario(sc, run_dir, seed=seed, progress=progress).summary
+
+
+def _layout(out: Path, experiment: str) -> tuple[set[str], list[Path]]:
+    """What ``nrtraffic paper EXPERIMENT --out OUT`` writes: the names at the top of ``out`` and the
+    run directories."""
+    parts = [("curved", _curved_runs, CURVED_FILES), ("cbf", _cbf_runs, CBF_FILES)]
+    top, dirs = set(), []
+    for name, runs, files in parts:
+        if experiment not in (name, "all"):
+            continue
+        sub = out / name if experiment == "all" else out
+        dirs += [d for _, d in runs(sub).values()]
+        top |= {name} if experiment == "all" else {d.relative_to(out).parts[0] for d in dirs} | set(files)
+    return top, dirs
+
+
+def claim_out(out: Path, experiment: str) -> None:
+    """Make ``out`` ready for the experiment, or refuse it (:class:`~runners.api.OutputError`, exit 2)
+    before anything runs: a folder SUMO can use and not in a sweep's, either new, empty or an earlier
+    output of the same command (its manifest lists what it wrote), with no file of the user's in its
+    run directories. Its manifest then lists, before anything is written, what it will write."""
+    from runners.api import OutputError, usable_path, writable_dir
+    from runners.single import MANIFEST, in_a_sweep, read_manifest
+    from runners.sweep import foreign_files, record_tables
+
+    out = Path(out)
+    usable_path(out)
+    owner = in_a_sweep(out)
+    if owner is not None and (owner != out.absolute() or (out / "runs").exists()):
+        raise OutputError(f"--out {out} lies in the sweep folder {owner}: choose a folder outside it")
+    top, dirs = _layout(out, experiment)
+    if out.is_dir():
+        m = read_manifest(out, sweep=True)
+        own = (set(m["created"]) - set(m["preexisting"]) if m is not None else set()) | {MANIFEST}
+        foreign = sorted(p.name for p in out.iterdir() if p.name not in own)
+        clash = [n for n in foreign if n in top]
+        if clash or (foreign and m is None):
+            raise OutputError(f"--out {out} holds {', '.join((clash or foreign)[:5])}, which no earlier reproduction "
+                              "there wrote (files of your own?): choose an empty folder, or the folder of an earlier "
+                              "`nrtraffic paper` to run it again")
+        for d in dirs:
+            mine = foreign_files(d) if d.is_dir() else []
+            if mine:
+                raise OutputError(f"{d} holds {', '.join(mine[:3])}, which its run did not write (files of your "
+                                  "own?): the run there would be replaced; move them out of the folder")
+    writable_dir(out)
+    record_tables(out, written=False, planned=sorted(top))
+
+
+def _curved_runs(out: Path) -> dict:
+    """The curved-road experiment's runs: ``(table, key) -> (overrides, run directory)``."""
+    runs = {("variants", k): (v, out / k) for k, v in CURVED_VARIANTS.items()}
+    runs.update({("euler", k): (CURVED_VARIANTS[k] + EULER, out / "euler" / k) for k in CURVED_EULER})
+    runs.update({("horizon", T): ([f"controller.horizon_s={T}"], out / "horizon" / f"T{T}") for T in HORIZONS})
+    return runs
+
+
 def run_curved(out: Path, seed: int | None = None, progress: bool = True) -> dict:
     """Run the curved-road experiment and its variants; write figures and ``paper_table.md``."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     path = SCENARIOS / "paper_curved" / "scenario.toml"
-    results = {}
-    for name, overrides in CURVED_VARIANTS.items():
-        sc = scenario.load(path, overrides)
-        results[name] = run_scenario(sc, out / name, seed=seed, progress=progress).summary
-    euler = {}
-    for name in CURVED_EULER:
-        sc = scenario.load(path, CURVED_VARIANTS[name] + EULER)
-        euler[name] = run_scenario(sc, out / "euler" / name, seed=seed, progress=progress).summary
+    done = {"variants": {}, "euler": {}, "horizon": {}}
+    for (table, key), (overrides, run_dir) in _curved_runs(out).items():
+        done[table][key] = _run(scenario.load(path, overrides), run_dir, seed, progress)
+    results, euler, sweep = done["variants"], done["euler"], done["horizon"]
     base = scenario.load(path)
-    sweep = {}
-    for T in HORIZONS:
-        sc = scenario.load(path, [f"controller.horizon_s={T}"])
-        sweep[T] = run_scenario(sc, out / "horizon" / f"T{T}", seed=seed, progress=progress).summary
     # figures of the main run
     main = out / "curved"
     traj = read_trajectories(main)
@@ -177,6 +242,16 @@ def _paper_time(df: pd.DataFrame) -> pd.DataFrame:
     return df
 
 
+def _cbf_runs(out: Path) -> dict:
+    """The barrier experiment's runs: ``(table, key) -> (overrides, run directory)``."""
+    runs = {("variants", k): (v, out / k) for k, v in CBF_VARIANTS.items()}
+    runs.update({("variants", k): (v, out / "antiwindup" / k) for k, v in ANTIWINDUP_VARIANTS.items()})
+    runs.update({("euler", k): (CBF_VARIANTS[k] + EULER, out / "euler" / k) for k in CBF_EULER})
+    runs.update({("horizon", T): (CBF_VARIANTS["without_cbf"] + [f"controller.horizon_s={T}"],
+                                  out / "horizon_without_cbf" / f"T{T}") for T in CBF_HORIZONS})
+    return runs
+
+
 def run_cbf(out: Path, seed: int | None = None, progress: bool = True) -> dict:
     """Run the barrier-function experiment with and without barriers; figures 5-10 and the table."""
     from nrtraffic.results import read_fcd
@@ -184,21 +259,10 @@ def run_cbf(out: Path, seed: int | None = None, progress: bool = True) -> dict:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     path = SCENARIOS / "paper_cbf" / "scenario.toml"
-    results = {}
-    for name, overrides in CBF_VARIANTS.items():
-        sc = scenario.load(path, overrides)
-        results[name] = run_scenario(sc, out / name, seed=seed, progress=progress).summary
-    for name, overrides in ANTIWINDUP_VARIANTS.items():
-        sc = scenario.load(path, overrides)
-        results[name] = run_scenario(sc, out / "antiwindup" / name, seed=seed, progress=progress).summary
-    euler = {}
-    for name in CBF_EULER:
-        sc = scenario.load(path, CBF_VARIANTS[name] + EULER)
-        euler[name] = run_scenario(sc, out / "euler" / name, seed=seed, progress=progress).summary
-    sweep = {}
-    for T in CBF_HORIZONS:
-        sc = scenario.load(path, CBF_VARIANTS["without_cbf"] + [f"controller.horizon_s={T}"])
-        sweep[T] = run_scenario(sc, out / "horizon_without_cbf" / f"T{T}", seed=seed, progress=progress).summary
+    done = {"variants": {}, "euler": {}, "horizon": {}}
+    for (table, key), (overrides, run_dir) in _cbf_runs(out).items():
+        done[table][key] = _run(scenario.load(path, overrides), run_dir, seed, progress)
+    results, euler, sweep = done["variants"], done["euler"], done["horizon"]
     base = scenario.load(path)
     d0 = base.barriers.min_gap_m + base.vehicle.params().length
     tr = {k: _paper_time(read_trajectories(out / k)) for k in CBF_VARIANTS}
@@ -293,6 +357,7 @@ def _cbf_table(r: dict, sweep: dict, base, d0: float, tr: dict, euler: dict) -> 
 
 def main(args) -> int:
     progress = not args.no_progress
+    claim_out(Path(args.out), args.experiment)
     if args.experiment in ("curved", "all"):
         run_curved(Path(args.out) / "curved" if args.experiment == "all" else args.out, seed=args.seed,
                    progress=progress)

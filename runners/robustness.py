@@ -15,7 +15,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from runners.sweep import NRTRAFFIC, check_resume, parse_seeds, plan, remove_stale, run_sweep
+from runners.sweep import (NRTRAFFIC, check_out, check_resume, make_out, parse_seeds, plan, record_tables, remove_stale,
+                           run_sweep)
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -110,9 +111,13 @@ def main(args) -> int:
     from runners.clusters import from_args
 
     batch = from_args(args)
-    todo = jobs(args.out)
+    out = Path(args.out)
+    check_out(out)  # (as a sweep's: not in another sweep's folder, no file of the user's replaced)
+    todo = jobs(out)
+    make_out(out)
     check_resume(todo, force=args.force)
-    remove_stale(args.out)
+    remove_stale(out)
+    record_tables(out, written=False)  # (what is there now is not the study's)
     df = run_sweep(todo, args.out, workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress,
                    figures=_figures, batch=batch)
     print((Path(args.out) / "sweep.md").read_text())

@@ -1138,8 +1138,9 @@ def check_out(out: Path) -> None:
     own = set(m["created"]) | {MANIFEST} if m is not None else set()
     foreign = sorted(p.name for p in out.iterdir() if p.name not in own and p.name not in SWEEP_FOLDERS)
     if foreign and not (out / "runs").is_dir():
-        raise SweepError(f"--out {out} holds files and no earlier sweep (no runs/ folder): choose an empty folder, "
-                         "or the folder of the sweep to resume")
+        raise SweepError(f"--out {out} holds {', '.join(foreign[:5])}{' and more' if len(foreign) > 5 else ''} and "
+                         "no earlier sweep (no runs/ folder): choose an empty folder, or the folder of the sweep to "
+                         "resume")
     runs = out / "runs"
     if (m is None and runs.is_dir() and any(runs.iterdir())
             and next(runs.rglob(FINGERPRINT), None) is None):  # (runs/ of a project: the user's own runs)
@@ -1152,6 +1153,19 @@ def check_out(out: Path) -> None:
                          f"the tables of a sweep of an earlier version, which kept no {MANIFEST}): a sweep would "
                          "write its tables over them; move them out of the folder and run again to resume its runs/, "
                          "or choose another folder")
+
+
+def make_out(out: Path) -> bool:
+    """Create a sweep's ``--out`` (checked first, :func:`check_out`), or refuse it when it cannot be
+    written (:class:`SweepError`); whether it was made here."""
+    from runners.api import OutputError, writable_dir
+
+    created = not out.exists()
+    try:
+        writable_dir(out)
+    except OutputError as exc:
+        raise SweepError(str(exc)) from None
+    return created
 
 
 def record_tables(out: Path, written: bool, planned=()) -> None:
@@ -1196,13 +1210,7 @@ def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]
     check_grid(grid)
     check_out(Path(out))
     jobs = plan(scenario_path, seeds, grid, controls, out, duration_s, tuple(overrides), allow_outside=allow_outside)
-    from runners.api import OutputError, writable_dir
-
-    created = not Path(out).exists()
-    try:
-        writable_dir(Path(out))  # (created only now: a sweep refused above leaves nothing)
-    except OutputError as exc:
-        raise SweepError(str(exc)) from None
+    created = make_out(Path(out))  # (only now: a sweep refused above leaves nothing)
     check_resume(jobs, force=force)
     remove_stale(out)
     record_tables(Path(out), written=False)  # (what is there now is not the sweep's)

@@ -427,6 +427,32 @@ def test_force_never_removes_or_overwrites_the_users_own_files(tmp_path, capsys)
     assert "not a finished run of this configuration" in capsys.readouterr().err
 
 
+def test_paper_and_robustness_refuse_an_out_they_would_write_the_users_files_in(tmp_path, capsys):
+    """``nrtraffic paper`` and ``nrtraffic robustness`` keep to a run's rules for ``--out``: a
+    folder of the user's files (one named as a file the study writes, or any other), a path SUMO
+    misreads or a file exit 2 before anything runs, and nothing of the user's is touched. So does
+    a file of the user's in a run folder of an earlier reproduction."""
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "paper_table.md").write_text("mine")
+    (tmp_path / "afile").write_text("mine")
+    for study in (["paper", "curved"], ["paper", "all"], ["robustness"]):
+        for out, named in ((mine, "paper_table.md"), (tmp_path / "a,b", "','"), (tmp_path / "afile", "not a folder")):
+            assert main([*study, "--out", str(out), "--no-progress"]) == 2
+            assert named in capsys.readouterr().err
+    assert [p.name for p in mine.iterdir()] == ["paper_table.md"] and (mine / "paper_table.md").read_text() == "mine"
+    assert (tmp_path / "afile").read_text() == "mine" and not (tmp_path / "a,b").exists()
+    # an earlier reproduction's folder (its manifest lists what it wrote) with a file of the user's
+    # in one of its runs
+    earlier = tmp_path / "earlier"
+    (earlier / "straight").mkdir(parents=True)
+    (earlier / "manifest.json").write_text(json.dumps({"sweep": 1, "preexisting": [], "created": ["straight"]}))
+    (earlier / "straight" / "notes.txt").write_text("mine")
+    assert main(["paper", "curved", "--out", str(earlier), "--no-progress"]) == 2
+    assert "notes.txt, which its run did not write" in capsys.readouterr().err
+    assert (earlier / "straight" / "notes.txt").read_text() == "mine"
+
+
 @pytest.mark.parametrize("edit, message", [
     # netconvert's default corner (4 m) and junction-lane detail (5 points): a 126-degree turn too
     # tight for the car
@@ -841,7 +867,7 @@ def test_a_sweep_does_not_write_into_a_folder_of_the_users_files(tmp_path, capsy
     (out / "sweep.csv").write_text("my own table\n")
     assert main(["sweep", str(CROSS4), "--seeds", "1", "--out", str(out), "--duration", "5", "--set",
                  "outputs.warmup_s=0", "--no-progress"]) == 2
-    assert "holds files and no earlier sweep" in capsys.readouterr().err
+    assert "and no earlier sweep (no runs/ folder)" in capsys.readouterr().err
     assert (out / "sweep.csv").read_text() == "my own table\n" and sorted(p.name for p in out.iterdir()) == ["sweep.csv"]
 
 
@@ -961,6 +987,10 @@ def test_a_sweep_never_replaces_a_run_folder_holding_the_users_files(tmp_path, c
     assert "lies in the sweep folder" in capsys.readouterr().err
     assert main(["sweep", str(CROSS4), "--out", str(out / "runs" / "inner"), *flags]) == 2
     assert "lies in the sweep folder" in capsys.readouterr().err
+    for study, where in ((["paper", "cbf"], out), (["paper", "cbf"], out / "runs" / "inner"),
+                         (["robustness"], out / "runs" / "inner")):  # (nor the other studies)
+        assert main([*study, "--out", str(where), "--no-progress"]) == 2
+        assert "lies in the sweep folder" in capsys.readouterr().err
     assert (run / "summary.json").read_text() == recorded and not (out / "runs" / "inner").exists()
     assert main(["run", str(CROSS4), "--out", str(out / "runs" / "new" / "deeper"), "--duration", "5", "--set",
                  "outputs.warmup_s=0", "--no-progress"]) == 2  # (its folders, made to be checked, go again)
