@@ -9,12 +9,16 @@ precision:
 - ``summary.json``: every number except those of the wall clock (``wall_time_s``,
   ``real_time_factor``, ``wall_time_breakdown_s``) and the versions;
 - ``vehicles.csv``: the same vehicles; every number of every vehicle, and the text columns equal;
+- ``movements.csv`` and ``approaches.csv``: every number; ``sumo/routes.rou.xml``: the departures;
 - SUMO's ``tripinfo.xml``, ``collisions.xml`` and ``queues.xml``: the same trips, collisions and
   detector intervals, attribute by attribute;
 - ``movements.json``: the junction's geometry as the run built it, every number;
 - ``trajectories.parquet``: the same log instants per vehicle; every number at every instant.
 
 NaN equals NaN (a figure that does not apply in both).
+
+The report (``report.html``) and the figures are drawn from these tables and are not compared: their
+pixels depend on the machine's fonts and Matplotlib.
 """
 
 from __future__ import annotations

@@ -143,21 +143,28 @@ def parse_grid(items: list[str]) -> list[tuple[str, list[str]]]:
     for item in items:
         key, sep, values = item.partition("=")
         key = key.strip()
-        vals = [v.strip() for v in values.split(",") if v.strip()]
-        if not sep or "." not in key or not vals:
+        vals = [v.strip() for v in values.split(",")]
+        if not sep or "." not in key or not any(vals):
             raise SweepError(f"--grid {item!r}: expected SECTION.KEY=V1,V2,...")
+        if not all(vals):  # ("400,,600" or "400,": a value left out, not a point to drop in silence)
+            raise SweepError(f"--grid {item!r}: an empty value between or after its commas; give each value once, "
+                             "e.g. SECTION.KEY=400,600")
         if key in dict(grid):
             raise SweepError(f"--grid {key} is given twice")
         grid.append((key, vals))
     return grid
 
 
-def check_grid(grid: list[tuple[str, list[str]]]) -> None:
-    """Refuse a grid over the seed, and a value given twice (``400`` and ``400.0``): one
-    configuration twice would count its runs as twice the samples."""
+def check_grid(grid: list[tuple[str, list[str]]], duration_s: float | None = None) -> None:
+    """Refuse a grid over the seed, over the duration when ``--duration`` (``duration_s``) sets it
+    for every run, and a value given twice (``400`` and ``400.0``): one configuration twice would
+    count its runs as twice the samples."""
     for key, vals in grid:
         if key in ("scenario.seed", "general.seed"):
             raise SweepError(f"--grid {key}: a sweep's seeds are --seeds (each run's seed); give them there")
+        if key in ("scenario.duration_s", "general.duration_s") and duration_s is not None and len(vals) > 1:
+            raise SweepError(f"--grid {key} and --duration {duration_s:g}: --duration sets every run's duration, so "
+                             "its grid points would be one configuration; give the durations in --grid alone")
         same = _same_values(vals)
         if same:
             raise SweepError(f"--grid {key}: {same[0]} and {same[1]} are the same value; give each once")
@@ -185,6 +192,9 @@ def parse_baselines(text: str | None) -> list[str]:
     if not out:
         raise SweepError(f"--baseline {text!r} names no control: give some of {', '.join(BASELINES)}, or leave "
                          "--baseline out")
+    if len(out) < len(text.split(",")):  # ("priority,,actuated": a control left out, not dropped in silence)
+        raise SweepError(f"--baseline {text!r}: an empty name between or after its commas; give e.g. "
+                         f"--baseline {','.join(out)}")
     for b in out:
         if b not in BASELINES:
             raise SweepError(f"--baseline {b!r}: expected some of {', '.join(BASELINES)}")
@@ -1207,7 +1217,7 @@ def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]
     if n > MAX_RUNS and not force:
         raise SweepError(f"the sweep has {n} runs, more than {MAX_RUNS}: narrow --seeds or --grid, or --force to "
                          "run them all")
-    check_grid(grid)
+    check_grid(grid, duration_s)
     check_out(Path(out))
     jobs = plan(scenario_path, seeds, grid, controls, out, duration_s, tuple(overrides), allow_outside=allow_outside)
     created = make_out(Path(out))  # (only now: a sweep refused above leaves nothing)

@@ -547,6 +547,10 @@ _ROUTE_CASES = {
                   'edges="W_in E_out"/>', "gives both period and vehsPerHour; give one rate"),
     "negative_number": ('<flow id="x" route="r" begin="0" end="100" number="-3"/><route id="r" edges="W_in E_out"/>'
                         '<vehicle id="v" route="r" depart="1"/>', "number=-3 is negative"),
+    "fractional_number": ('<flow id="x" route="r" begin="0" end="100" number="2.5"/><route id="r" edges="W_in E_out"/>',
+                          "number='2.5' is not a whole number of vehicles"),
+    "end_before_begin": ('<flow id="x" route="r" begin="50" end="10" period="2"/><route id="r" edges="W_in E_out"/>'
+                         '<vehicle id="v" route="r" depart="1"/>', "end=10 is before begin=50"),
     "exp_negative": ('<flow id="x" route="r" begin="0" end="100" period="exp(-1)"/><route id="r" edges="W_in E_out"/>'
                      '<vehicle id="v" route="r" depart="1"/>', "the rate of exp(RATE) must be a number > 0"),
     # trips and flows by from/to go to duarouter, which hung on these rates: checked first
@@ -936,6 +940,12 @@ def test_a_sweep_stopped_while_it_writes_its_tables_resumes(tmp_path, monkeypatc
     (["--baseline", ""], "names no control"),
     (["--grid", "scenario.seed=1,2"], "a sweep's seeds are --seeds"),
     (["--workers", "100000"], "a local cluster takes at most"),
+    # --duration sets every run's: a grid over the duration would be one configuration
+    (["--grid", "scenario.duration_s=5,10"], "would be one configuration"),
+    # a value or a control left out by a stray comma
+    (["--grid", "demand.rate_veh_h=400,,600"], "an empty value between or after its commas"),
+    (["--grid", "demand.rate_veh_h=400,"], "an empty value between or after its commas"),
+    (["--baseline", "priority,"], "an empty name between or after its commas"),
     # a bad value at one grid point: the message says which point
     (["--grid", "demand.rate_veh_h=400,-5", "--set", "outputs.warmup_s=0"],
      "at the grid point demand.rate_veh_h=-5: "),
@@ -944,8 +954,9 @@ def test_a_sweep_stopped_while_it_writes_its_tables_resumes(tmp_path, monkeypatc
 ])
 def test_sweep_flags_that_would_count_a_run_twice_or_do_nothing_are_refused(flags, message, tmp_path, capsys):
     """The same configuration twice (two runs of one seed counted as two samples), a --baseline
-    of no control, a grid over the seed (every row had the same seed), and a local cluster of
-    100000 workers (it hung): exit 2 before anything runs."""
+    of no control, a grid over the seed (every row had the same seed) or over the duration that
+    --duration sets, a value left out by a stray comma, and a local cluster of 100000 workers (it
+    hung): exit 2 before anything runs."""
     out = tmp_path / "study"
     assert main(["sweep", str(CROSS4), "--seeds", "1", "--duration", "5", "--no-progress", "--out", str(out),
                  *flags]) == 2

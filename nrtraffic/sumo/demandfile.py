@@ -317,7 +317,11 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
             raise DemandFileError(f"{where}: gives both {rates[0]} and {rates[1]}; give one rate")
         if el.get("number") is not None and _num(el, "number", where) < 0:
             raise DemandFileError(f"{where}: number={el.get('number')} is negative")
+        if el.get("number") is not None and not el.get("number").strip().isdigit():  # (SUMO reads an integer)
+            raise DemandFileError(f"{where}: number={el.get('number')!r} is not a whole number of vehicles")
         begin = _num(el, "begin", where, 0.0)
+        if el.get("end") is not None and _num(el, "end", where) < begin:
+            raise DemandFileError(f"{where}: end={el.get('end')} is before begin={el.get('begin')}")
         end = min(_num(el, "end", where, math.inf), end_s)
         if el.get("number") is None and _flow_size(el, end if math.isfinite(end) else None) > MAX_FLOW_VEHICLES:
             raise DemandFileError(f"{where}: makes more than the {MAX_FLOW_VEHICLES} vehicles one flow may have "
