@@ -241,7 +241,7 @@ def _seed_duration(sc, seed, duration_s) -> tuple[int, float | None]:
     from nrtraffic.scenario import ScenarioError
 
     if seed is not None:
-        if isinstance(seed, bool) or not isinstance(seed, (int, float, str)) or str(seed).strip() == "":
+        if isinstance(seed, bool) or not isinstance(seed, (numbers.Real, str)) or str(seed).strip() == "":
             raise ScenarioError(f"seed={seed!r}: give a whole number 0 to {MAX_SEED}")
         try:
             value = float(seed)
@@ -262,9 +262,18 @@ def _seed_duration(sc, seed, duration_s) -> tuple[int, float | None]:
     return (sc.general.seed if seed is None else seed), duration_s
 
 
+def _path(value, name: str) -> Path:
+    """A path argument of the Python API (a ``str`` or a ``pathlib.Path``), or a ScenarioError naming it."""
+    from nrtraffic.scenario import ScenarioError
+
+    if not isinstance(value, (str, os.PathLike)) or isinstance(os.fspath(value), bytes):
+        raise ScenarioError(f"{name}={value!r}: give a path as a str or a pathlib.Path")
+    return Path(value)
+
+
 def _out(out, prefix: str) -> Path:
     if out is not None:
-        return Path(out)
+        return _path(out, "out")
     import tempfile
 
     return Path(tempfile.mkdtemp(prefix=f"nrtraffic-{prefix}-"))
@@ -295,7 +304,7 @@ def run(scenario: str | Path, *, seed: int | None = None, duration_s: float | No
     from nrtraffic import scenario as scenario_mod
     from runners.single import run_scenario
 
-    sc = scenario_mod.load(scenario, settings(overrides), allow_outside=allow_outside)
+    sc = scenario_mod.load(_path(scenario, "scenario"), settings(overrides), allow_outside=allow_outside)
     seed, duration_s = _seed_duration(sc, seed, duration_s)
     out = _out(out, f"{slug(sc.general.name)}-seed{seed}")
     claim(out, sc, seed, duration_s, "nrtraffic", force)
@@ -314,7 +323,7 @@ def baseline(scenario: str | Path, junction: str, *, seed: int | None = None, du
     from nrtraffic.sumo.netbuild import BASELINES
     from runners.baseline import run_baseline
 
-    sc = scenario_mod.load(scenario, settings(overrides), allow_outside=allow_outside)
+    sc = scenario_mod.load(_path(scenario, "scenario"), settings(overrides), allow_outside=allow_outside)
     seed, duration_s = _seed_duration(sc, seed, duration_s)
     if junction not in BASELINES:  # (checked before the run folder is made)
         raise scenario_mod.ScenarioError(f"junction={junction!r}: one of {', '.join(BASELINES)}")
@@ -350,6 +359,8 @@ def sweep(scenario: str | Path, seeds: Iterable[int] | str, *, grid: Mapping[str
     from runners import sweep as sweep_mod
 
     _, duration_s = _seed_duration(None, 0, duration_s)  # (checked as run's; a seed of 0 stands in)
+    if not isinstance(seeds, (str, Iterable)):
+        raise sweep_mod.SweepError(f"seeds={seeds!r}: give the seeds, e.g. range(1, 21) or \"1:20\"")
     if not isinstance(seeds, str):
         seeds = list(seeds)
         odd = [s for s in seeds if isinstance(s, bool) or not isinstance(s, numbers.Integral)]
@@ -366,7 +377,7 @@ def sweep(scenario: str | Path, seeds: Iterable[int] | str, *, grid: Mapping[str
     names = baselines if isinstance(baselines, str) else ",".join(baselines)
     controls = [sweep_mod.NRTRAFFIC] + sweep_mod.parse_baselines(names if names else None)
     out = _out(out, "sweep")
-    sweep_mod.study(Path(scenario), seeds, points, controls, out, duration_s=duration_s,
+    sweep_mod.study(_path(scenario, "scenario"), seeds, points, controls, out, duration_s=duration_s,
                     overrides=tuple(settings(overrides)), workers=workers, scheduler=scheduler, force=force,
                     progress=progress, allow_outside=allow_outside)
     return Sweep(out)

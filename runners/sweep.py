@@ -28,6 +28,7 @@ import itertools
 import logging
 import json
 import math
+import numbers
 import os
 import re
 import shutil
@@ -1203,8 +1204,9 @@ def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]
     point's configuration, refuse a resume of another configuration (unless ``force``), then
     :func:`run_sweep` (``batch``: on Slurm or PBS, see :mod:`runners.clusters`). Returns
     ``sweep.csv`` as a DataFrame."""
-    if isinstance(workers, bool) or not isinstance(workers, int):  # (the Python API: 1.5 failed inside Dask)
+    if isinstance(workers, bool) or not isinstance(workers, numbers.Integral):  # (the API: 1.5 failed inside Dask)
         raise SweepError(f"workers={workers!r}: give a whole number of worker processes")
+    workers = int(workers)
     if scheduler is None and workers < 1:
         raise SweepError(f"--workers {workers}: need at least one worker process")
     if scheduler is not None and not SCHEDULER_ADDRESS.match(scheduler):

@@ -169,4 +169,24 @@ def test_api_values_are_checked_before_anything_is_written(tmp_path):
         nrtraffic.sweep(CROSS4, [1], duration_s=float("nan"), out=tmp_path / "d")
     with pytest.raises(SweepError, match="workers=1.5: give a whole number"):
         nrtraffic.sweep(CROSS4, [1], duration_s=5, workers=1.5, out=tmp_path / "c")
+    with pytest.raises(SweepError, match="seeds=None: give the seeds"):
+        nrtraffic.sweep(CROSS4, None, duration_s=5, out=tmp_path / "e")
+    for where in ({"scenario": str(CROSS4).encode()}, {"scenario": CROSS4, "out": b"f"}):
+        with pytest.raises(ScenarioError, match="give a path as a str or a pathlib.Path"):
+            nrtraffic.run(**where, duration_s=5)
+    with pytest.raises(ScenarioError, match="give a path as a str or a pathlib.Path"):
+        nrtraffic.sweep(bytes(CROSS4), [1], duration_s=5, out=tmp_path / "g")
     assert not any(tmp_path.iterdir())
+
+
+def test_api_takes_numpy_integers_as_seeds_and_workers(tmp_path):
+    """A seed or a number of workers from numpy (np.int64) is a whole number, as the same value
+    in Python's int: the run's seed is that number (it had been refused)."""
+    import numpy as np
+
+    r = nrtraffic.run(CROSS4, seed=np.int64(3), duration_s=5, out=tmp_path / "r", overrides={"outputs.warmup_s": 0},
+                      report=False)
+    assert r.summary["seed"] == 3 and isinstance(r.summary["seed"], int)
+    s = nrtraffic.sweep(CROSS4, np.arange(1, 2), duration_s=5, workers=np.int64(1), out=tmp_path / "s",
+                        overrides={"outputs.warmup_s": 0})
+    assert list(s.table["seed"]) == [1] and (s.table["status"] == "ok").all()

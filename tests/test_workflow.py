@@ -387,6 +387,12 @@ def test_sumo_demand_file_follows_sumos_flow_rules(tmp_path):
     <flow id="f" from="W_in" to="E_out" begin="1:00:00" end="1:00:10" period="5"/>""")
     times = {vid: t for vid, _, t, *_ in read_sumo_demand(clock, _MOVES, np.random.default_rng(1), math.inf, 13.89)}
     assert times == {"t1": 63.5, "f.0": 3600.0, "f.1": 3605.0}
+    # a flow without an end goes on for SUMO's day (SUMO 1.28: "Undefined end for flow 'x', defaulting
+    # to 24hour duration"; by hand, period="3600" gives 24 trips departing 0 to 82800 s), also in a
+    # run without an end (it had made no vehicle at all)
+    day = _routes(tmp_path, '<flow id="f" from="W_in" to="E_out" begin="0" period="3600"/>')
+    times = [t for _, _, t, *_ in read_sumo_demand(day, _MOVES, np.random.default_rng(1), math.inf, 13.89)]
+    assert times == [3600.0 * k for k in range(24)]
     # the run's end cuts open-ended flows
     short = read_sumo_demand(p, _MOVES, np.random.default_rng(1), 100.0, 13.89)
     assert all(t < 100.0 for vid, _, t, *_ in short if vid.startswith(("a.", "c.", "d.")))

@@ -103,7 +103,7 @@ def _flow_size(el, end: float | None = None) -> float:
     try:
         if el.get("number") is not None:
             return float(el.get("number"))
-        span = (float(el.get("end", "86400")) if end is None else end) - float(el.get("begin", "0"))
+        span = (float(el.get("end", FLOW_END_S)) if end is None else end) - float(el.get("begin", "0"))
         period = el.get("period")
         if period is not None:
             if period.startswith("exp(") and period.endswith(")"):  # (SUMO's random arrivals at a rate [1/s])
@@ -117,6 +117,7 @@ def _flow_size(el, end: float | None = None) -> float:
     return 0.0
 
 
+FLOW_END_S = 86400.0  # SUMO's end of a <flow> that gives none: a day [s]
 MIN_EXP_RATE = 1e-9  # the lowest rate of a flow's exp(RATE) [1/s]: one vehicle in about 30 years (duarouter hangs on 1e-100)
 
 
@@ -322,7 +323,7 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
         begin = _num(el, "begin", where, 0.0)
         if el.get("end") is not None and _num(el, "end", where) < begin:
             raise DemandFileError(f"{where}: end={el.get('end')} is before begin={el.get('begin')}")
-        end = min(_num(el, "end", where, math.inf), end_s)
+        end = min(_num(el, "end", where, FLOW_END_S), end_s)  # (SUMO's own end where it gives none)
         if el.get("number") is None and _flow_size(el, end if math.isfinite(end) else None) > MAX_FLOW_VEHICLES:
             raise DemandFileError(f"{where}: makes more than the {MAX_FLOW_VEHICLES} vehicles one flow may have "
                                   "in the run: give it an end (or a number) that the study needs")
