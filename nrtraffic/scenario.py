@@ -217,8 +217,10 @@ class Demand:
     def validate(self) -> None:
         if self.entry_speed_mps <= 0:
             raise ScenarioError("demand.entry_speed_mps must be > 0")
-        if self.mean_headway_s != 0 and not (0 <= self.min_headway_s < self.mean_headway_s):
-            raise ScenarioError("demand needs 0 <= min_headway_s < mean_headway_s (or mean_headway_s = 0)")
+        by_mean = self.rate_veh_h == 0 and not self.flows and not self.sumo_routes  # (else the rate's check below)
+        if by_mean and self.mean_headway_s != 0 and not (0 <= self.min_headway_s < self.mean_headway_s):
+            raise ScenarioError(f"demand.min_headway_s = {self.min_headway_s} s must be below demand.mean_headway_s = "
+                                f"{self.mean_headway_s} s (or mean_headway_s = 0: no random arrivals)")
         if not (0 <= self.turn_left <= 1 and 0 <= self.turn_right <= 1 and self.turn_left + self.turn_right <= 1):
             raise ScenarioError("demand.turn_left and demand.turn_right must be shares in [0, 1] summing to <= 1")
         names = [f.approach for f in self.flows]

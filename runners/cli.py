@@ -425,7 +425,13 @@ def _main(argv: list[str] | None) -> int:
             if args.write is None:
                 print(text, end="")
             else:
-                args.write.write_text(text)
+                if args.write.is_dir() or not args.write.parent.is_dir():
+                    raise OutputError(f"--write {args.write}: " + ("is a folder; name a file in it" if
+                                      args.write.is_dir() else "its folder does not exist"))
+                try:
+                    args.write.write_text(text)
+                except OSError as exc:
+                    raise OutputError(f"--write {args.write}: cannot write there: {exc.strerror or exc}") from None
             return 0
     except (ScenarioError, NetworkError) as exc:
         print(f"nrtraffic: scenario error: {exc}", file=sys.stderr)

@@ -185,6 +185,16 @@ def test_bad_run_flags_exit_2_naming_the_flag(flags, named, tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
+def test_schema_write_to_a_folder_or_nowhere_exits_2(tmp_path, capsys):
+    """``schema --write`` names a file: a folder, or a file in a folder that does not exist, exits 2
+    naming the flag (a Python error had exited 1)."""
+    for where in (tmp_path, tmp_path / "no" / "s.json"):
+        assert main(["schema", "--write", str(where)]) == 2
+        assert f"--write {where}" in capsys.readouterr().err
+    assert main(["schema", "--write", str(tmp_path / "s.json")]) == 0
+    assert json.loads((tmp_path / "s.json").read_text())["type"] == "object"
+
+
 @pytest.mark.parametrize("flags", [["--rtol", "-1"], ["--atol", "nan"], ["--atol", "inf"]])
 def test_bad_replay_tolerances_exit_2(flags, capsys):
     with pytest.raises(SystemExit) as exc:
@@ -348,6 +358,10 @@ def _scenario_copy(tmp_path, old=None, new=None, extra=""):
      "--max-depart-delay needs a value (time)"),
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--max-depart-delay", "abc"]', "",
      "--max-depart-delay needs a number (time), not 'abc'"),
+    # named as the keys that set the arrivals (the message had been about mean_headway_s, which the
+    # file does not set and the run does not use)
+    ("min_headway_s = 1.5", "min_headway_s = 20.0", "",
+     "demand.rate_veh_h = 400 veh/h needs a mean headway above demand.min_headway_s = 20.0 s"),
 ])
 def test_scenarios_that_would_run_wrong_exit_2_naming_the_problem(old, new, extra, message, tmp_path, capsys):
     d = _scenario_copy(tmp_path, old or None, new or None, extra)
