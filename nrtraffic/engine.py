@@ -300,8 +300,8 @@ class Engine:
                 st.t = st.sumo.time
                 if self.duration > 0 and st.t >= self.duration - 1e-9:
                     break
-                if st.t > 0 and st.sumo.pending() == 0 and not self.kernel.table.ids:
-                    break
+                if self.duration <= 0 and st.t > 0 and st.sumo.pending() == 0 and not self.kernel.table.ids:
+                    break  # (with a duration the run goes on to it, as SUMO's --end: every control's window alike)
                 now = self._tick(dt, step % log_every == 0, step % 10 == 0)
                 if step % 10 == 0:
                     watch_junctions(st, self.admission)
