@@ -252,20 +252,28 @@ def plan(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]]
 # ------------------------------------------------------------------ one run (on a worker)
 def finished(job: Job) -> dict | None:
     """The summary of the job's run directory when it holds a complete, successful run of this job."""
+    return None if unfinished(job) else json.loads((Path(job.run_dir) / "summary.json").read_text())
+
+
+def unfinished(job: Job) -> str | None:
+    """Why the job's run directory does not hold a complete, successful run of this job (None when
+    it does)."""
     path = Path(job.run_dir) / "summary.json"
     if not path.is_file():
-        return None
+        return "not run"
     try:
         s = json.loads(path.read_text())
     except (OSError, ValueError):
-        return None
-    if s.get("status") != "ok" or s.get("seed") != job.seed:
-        return None
+        return "its summary.json cannot be read"
+    if s.get("status") != "ok":
+        return f"status {s.get('status')!r}: {s.get('error') or 'no error recorded'}"
+    if s.get("seed") != job.seed:
+        return f"its run has seed {s.get('seed')}, not {job.seed}"
     if job.fingerprint and recorded_fingerprint(job.run_dir) != job.fingerprint:
-        return None
+        return "its run was made with another configuration"
     if job.duration_s and not math.isclose(float(s.get("sim_time_s") or 0.0), job.duration_s, abs_tol=0.5):
-        return None
-    return s
+        return f"its run simulated {s.get('sim_time_s')} s, not {job.duration_s:g} s"
+    return None
 
 
 def run_job(spec: dict) -> dict:
@@ -561,7 +569,7 @@ def collect(jobs: list[Job], errors: dict[str, str] | None = None) -> pd.DataFra
         row.update(seed=j.seed, control=j.control)
         s = finished(j)
         if s is None:
-            row.update(status="failed", error=errors.get(j.run_dir, "not run"))
+            row.update(status="failed", error=errors.get(j.run_dir) or unfinished(j))
         else:
             row.update(status="ok", error="")
             row.update({k: v for k, v in s.items()

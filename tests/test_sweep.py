@@ -214,3 +214,23 @@ def test_a_grid_of_two_keys_runs(tmp_path):
                  "--set", "scenario.duration_s=20", "--set", "outputs.warmup_s=0"])
     df = pd.read_csv(out / "sweep.csv")
     assert code == 0 and len(df) == 4 and (df["status"] == "ok").all()
+
+
+def test_a_run_that_is_not_the_jobs_says_why(tmp_path):
+    """A sweep's row of a run directory that does not hold its job's run names the reason (it had
+    said "not run" of a run that had run, and ended before its duration)."""
+    from runners.sweep import Job, finished, unfinished
+
+    d = tmp_path / "run"
+    job = Job(scenario="s", overrides=(), point=(), seed=3, control="nrtraffic", duration_s=600.0, run_dir=str(d))
+    assert unfinished(job) == "not run"
+    d.mkdir()
+    for summary, why in (({"status": "failed", "error": "boom"}, "status 'failed': boom"),
+                         ({"status": "ok", "seed": 4, "sim_time_s": 600.0}, "its run has seed 4, not 3"),
+                         ({"status": "ok", "seed": 3, "sim_time_s": 580.1}, "its run simulated 580.1 s, not 600 s")):
+        (d / "summary.json").write_text(json.dumps(summary))
+        assert unfinished(job) == why and finished(job) is None
+    (d / "summary.json").write_text("{")
+    assert unfinished(job) == "its summary.json cannot be read"
+    (d / "summary.json").write_text(json.dumps({"status": "ok", "seed": 3, "sim_time_s": 600.0}))
+    assert unfinished(job) is None and finished(job)["seed"] == 3
