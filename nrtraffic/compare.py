@@ -68,10 +68,19 @@ def _check(run_dir: Path) -> dict:
         why = f": {s['error']}" if s.get("error") else ""
         raise CompareError(f"{run_dir}: not a finished run (summary.json status {status!r}{why}); compare runs "
                            "whose status is ok, or run it again")
-    for name in ("movements.csv", "approaches.csv", "vehicles.csv"):
+    for name, needed in (("movements.csv", ("approach", "movement")), ("approaches.csv", ("approach",)),
+                         ("vehicles.csv", ("vehicle_id", "approach", "movement"))):
         if not (run_dir / name).is_file():
             raise CompareError(f"{run_dir}: a finished run without {name} (written by an older version?): "
                                "run it again")
+        try:
+            columns = pd.read_csv(run_dir / name, nrows=0).columns
+        except (OSError, ValueError) as exc:
+            raise CompareError(f"{run_dir}/{name} cannot be read ({type(exc).__name__}): run it again") from None
+        lost = [c for c in needed if c not in columns]
+        if lost:
+            raise CompareError(f"{run_dir}/{name} has no column {', '.join(lost)}: not a run's table (edited or "
+                               "damaged); run it again")
     return s
 
 

@@ -685,6 +685,10 @@ def run_summary(f: RunFacts, veh: pd.DataFrame, trips: dict, demand_veh_h, statu
         demanded, n_served = demand_served(veh, due, w0, w1, sim_t)
     served = n_served / demanded if demanded else None
     warnings = []
+    if window <= 0 and sim_t > 0:  # (a run without a duration that ended before its window opened)
+        warnings.append(f"the measurement window is empty: it opens at outputs.warmup_s = {w0:g} s and the run "
+                        f"ended at {w1:g} s ({'outputs.measure_end_s' if f.measure_end_s else 'its end'}), so no "
+                        "figure of traffic was measured; lower outputs.warmup_s, or give the run a longer demand")
     if 0 < window < f.zone_crossing_s:
         warnings.append(f"the measurement window ({w0:g}-{w1:g} s, {window:g} s) is shorter than the "
                         f"{f.zone_crossing_s:.0f} s a car needs to cross the control zone at the speed limit: few "

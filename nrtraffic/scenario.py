@@ -703,6 +703,8 @@ def parse_override(text: str) -> tuple[str, str, Any]:
     """``'section.key=value'`` -> (section, key, value); the value is read as TOML, else a string."""
     if "=" not in text or "." not in text.split("=", 1)[0]:
         raise ScenarioError(f"--set expects section.key=value, got {text!r}")
+    if "\n" in text or "\r" in text:  # (TOML read the next line as another setting, taken in silence)
+        raise ScenarioError(f"--set {text!r}: a line break in it; give each setting as its own --set")
     lhs, rhs = text.split("=", 1)
     section, key = lhs.strip().split(".", 1)
     try:

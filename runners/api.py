@@ -73,9 +73,10 @@ def slug(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._-")[:100].strip("._-") or "run"
 
 
-def claim(out: Path, sc, seed, duration, control: str, force: bool) -> None:
+def claim(out: Path, sc, seed, duration, control: str, force: bool) -> list[Path]:
     """Check the scenario against its network and build its demand (exit 2 on an error, before
-    anything is written), then make ``out`` ready for the run."""
+    anything is written), then make ``out`` ready for the run. Returns the folders made for it
+    (for :func:`give_up`)."""
     from runners.single import check, check_demand, claim_run_dir
 
     check(sc)
@@ -91,6 +92,38 @@ def claim(out: Path, sc, seed, duration, control: str, force: bool) -> None:
         raise OutputError(str(exc)) from None
     except OSError as exc:
         raise OutputError(f"--out {out}: cannot clear the earlier run: {exc}") from None
+    return new
+
+
+@contextlib.contextmanager
+def _refused(out: Path, new: list[Path]):
+    """Around a run after :func:`claim`: a scenario error (exit 2) before SUMO starts leaves
+    nothing of the run (:func:`give_up`)."""
+    from nrtraffic.scenario import ScenarioError
+    from nrtraffic.sumo.network import NetworkError
+
+    try:
+        yield
+    except (ScenarioError, NetworkError):
+        give_up(out, new)
+        raise
+
+
+def give_up(out: Path, new: list[Path]) -> None:
+    """A run refused (exit 2) after :func:`claim`, before SUMO started (no ``summary.json``): what
+    it wrote into ``out`` goes (its manifest's files, nothing else), and so do the folders made for
+    it (``new``) where they are empty."""
+    from runners.single import read_manifest, remove_run_files
+
+    out = Path(out)
+    if (out / "summary.json").exists():
+        return
+    if read_manifest(out) is not None:
+        with contextlib.suppress(OSError):
+            remove_run_files(out)
+    for p in new:
+        with contextlib.suppress(OSError):
+            p.rmdir()
 
 
 # ------------------------------------------------------------------ results
@@ -307,8 +340,9 @@ def run(scenario: str | Path, *, seed: int | None = None, duration_s: float | No
     sc = scenario_mod.load(_path(scenario, "scenario"), settings(overrides), allow_outside=allow_outside)
     seed, duration_s = _seed_duration(sc, seed, duration_s)
     out = _out(out, f"{slug(sc.general.name)}-seed{seed}")
-    claim(out, sc, seed, duration_s, "nrtraffic", force)
-    run_scenario(sc, out, seed=seed, duration_s=duration_s, progress=progress, report=report)
+    new = claim(out, sc, seed, duration_s, "nrtraffic", force)
+    with _refused(out, new):
+        run_scenario(sc, out, seed=seed, duration_s=duration_s, progress=progress, report=report)
     return Run(out)
 
 
@@ -328,8 +362,9 @@ def baseline(scenario: str | Path, junction: str, *, seed: int | None = None, du
     if junction not in BASELINES:  # (checked before the run folder is made)
         raise scenario_mod.ScenarioError(f"junction={junction!r}: one of {', '.join(BASELINES)}")
     out = _out(out, f"{slug(sc.general.name)}-seed{seed}-{junction}")
-    claim(out, sc, seed, duration_s, f"sumo_{junction}", force)
-    run_baseline(sc, junction, out, seed=seed, duration_s=duration_s, progress=progress, report=report)
+    new = claim(out, sc, seed, duration_s, f"sumo_{junction}", force)
+    with _refused(out, new):
+        run_baseline(sc, junction, out, seed=seed, duration_s=duration_s, progress=progress, report=report)
     return Run(out)
 
 
@@ -365,7 +400,8 @@ def sweep(scenario: str | Path, seeds: Iterable[int] | str, *, grid: Mapping[str
         seeds = list(seeds)
         odd = [s for s in seeds if isinstance(s, bool) or not isinstance(s, numbers.Integral)]
         if odd:  # (1.5 had been run as seed 1, True as seed 1)
-            raise sweep_mod.SweepError(f"seeds: {odd[0]!r} is not a whole number; give the seeds as integers")
+            raise sweep_mod.SweepError(f"seeds: {odd[0]!r} is not an integer; give the seeds as integers, e.g. "
+                                       "range(1, 21)")
         seeds = ",".join(str(int(s)) for s in seeds)
     seeds = sweep_mod.parse_seeds(seeds)
     points = []  # (not through the text of --grid: a list value, or a string with a comma, is one value)

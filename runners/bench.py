@@ -398,14 +398,20 @@ def run_all(quick: bool = False) -> str:
 
 
 def main(args) -> int:
+    """``nrtraffic bench``: the table is written to ``--write`` (checked first), or by default to
+    the committed ``bench/results.md`` (``bench/scale.md``), except for a ``--quick`` smoke test,
+    which only prints its table where no ``--write`` is given."""
+    from runners.cli import writable_file, write_file
+
+    default = None if args.quick else ("bench/scale.md" if args.scale else "bench/results.md")
+    write = writable_file(args.write) if args.write else (Path(default) if default else None)
     if args.scale:
-        write = Path(args.write or "bench/scale.md")
+        figure = write.with_suffix(".png") if write is not None else None
         table = "\n".join(["# nrtraffic scale benchmark", "", *scale_section(
-            120.0 if args.quick else 600.0, write.with_suffix(".png"), district_hour=not args.quick)]) + "\n"
-        print(table)
-        write.write_text(table)
-        return 0
-    table = run_all(quick=args.quick)
+            120.0 if args.quick else 600.0, figure, district_hour=not args.quick)]) + "\n"
+    else:
+        table = run_all(quick=args.quick)
     print(table)
-    Path(args.write or "bench/results.md").write_text(table)
+    if write is not None:
+        write_file(write, table)
     return 0

@@ -9,6 +9,7 @@ kernels fresh) and the Python API's helpers are imported when first used.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -220,8 +221,9 @@ def _add_bench(sub) -> None:
                        description="Benchmark the compiled kernels, whole runs against SUMO alone on the same "
                                    "demand, where a run's time goes, and peak memory (ratios measured in one "
                                    "run; takes a few minutes).")
-    p.add_argument("--write", type=Path, default=None, metavar="FILE",
-                   help="write the table to FILE (markdown; default bench/results.md, with --scale bench/scale.md)")
+    p.add_argument("--write", type=str, default=None, metavar="FILE",
+                   help="write the table to FILE (markdown; default bench/results.md, with --scale bench/scale.md; "
+                        "with --quick only where given)")
     p.add_argument("--quick", action="store_true",
                    help="short runs (120 s instead of 600 s; memory at 60 and 120 s): a smoke test, not the figures")
     p.add_argument("--scale", action="store_true",
@@ -303,7 +305,29 @@ def _add_schema(sub) -> None:
                                    "format (editors that read JSON Schema check and complete scenario.toml with it; "
                                    "a committed copy is docs/scenario.schema.json).")
     p.add_argument("--markdown", action="store_true", help="the key reference in markdown instead (docs/scenario_keys.md)")
-    p.add_argument("--write", type=Path, default=None, metavar="FILE", help="write to FILE instead of printing")
+    p.add_argument("--write", type=str, default=None, metavar="FILE", help="write to FILE instead of printing")
+
+
+def writable_file(text: str) -> Path:
+    """``--write FILE`` checked before the work that it is to hold (:class:`~runners.api.OutputError`,
+    exit 2): a file's name, not a folder's (nor one ending in a slash), in a folder that exists."""
+    from runners.api import OutputError
+
+    path = Path(text)
+    if not text.strip() or text.endswith(("/", os.sep)) or path.is_dir():
+        raise OutputError(f"--write {text}: is a folder; name a file in it")
+    if not path.absolute().parent.is_dir():
+        raise OutputError(f"--write {text}: its folder does not exist")
+    return path
+
+
+def write_file(path: Path, text: str) -> None:
+    from runners.api import OutputError
+
+    try:
+        path.write_text(text)
+    except OSError as exc:
+        raise OutputError(f"--write {path}: cannot write there: {exc.strerror or exc}") from None
 
 
 def _folder(text: str) -> Path:
@@ -389,13 +413,15 @@ def _main(argv: list[str] | None) -> int:
             return paper.main(args)
         if args.command == "baseline":
             from nrtraffic import scenario
+            from runners.api import _refused
             from runners.api import claim as _claim
             from runners.baseline import run_baseline
 
             sc = scenario.load(args.scenario, args.overrides, allow_outside=args.allow_outside)
-            _claim(args.out, sc, args.seed, args.duration, f"sumo_{args.junction}", args.force)
-            res = run_baseline(sc, args.junction, args.out, seed=args.seed, duration_s=args.duration,
-                               progress=not args.no_progress, report=True)
+            new = _claim(args.out, sc, args.seed, args.duration, f"sumo_{args.junction}", args.force)
+            with _refused(args.out, new):
+                res = run_baseline(sc, args.junction, args.out, seed=args.seed, duration_s=args.duration,
+                                   progress=not args.no_progress, report=True)
             _print_summary(res.summary, args.out)
             return 0
         if args.command == "sweep":
@@ -425,13 +451,7 @@ def _main(argv: list[str] | None) -> int:
             if args.write is None:
                 print(text, end="")
             else:
-                if args.write.is_dir() or not args.write.parent.is_dir():
-                    raise OutputError(f"--write {args.write}: " + ("is a folder; name a file in it" if
-                                      args.write.is_dir() else "its folder does not exist"))
-                try:
-                    args.write.write_text(text)
-                except OSError as exc:
-                    raise OutputError(f"--write {args.write}: cannot write there: {exc.strerror or exc}") from None
+                write_file(writable_file(args.write), text)
             return 0
     except (ScenarioError, NetworkError) as exc:
         print(f"nrtraffic: scenario error: {exc}", file=sys.stderr)
@@ -461,6 +481,7 @@ def _main(argv: list[str] | None) -> int:
 def _cmd_run(args) -> int:
     from nrtraffic import scenario
     from runners.api import OutputError, slug
+    from runners.api import _refused
     from runners.api import claim as _claim
     from runners.single import run_scenario
 
@@ -471,9 +492,10 @@ def _cmd_run(args) -> int:
         no_display = display_missing(out)
         if no_display:
             raise OutputError(no_display)  # (exit 2, before SUMO starts)
-    _claim(out, sc, seed, args.duration, "nrtraffic", args.force)
-    res = run_scenario(sc, out, seed=seed, duration_s=args.duration, progress=not args.no_progress, gui=args.gui,
-                       gui_delay_ms=args.gui_delay, report=True)
+    new = _claim(out, sc, seed, args.duration, "nrtraffic", args.force)
+    with _refused(out, new):
+        res = run_scenario(sc, out, seed=seed, duration_s=args.duration, progress=not args.no_progress,
+                           gui=args.gui, gui_delay_ms=args.gui_delay, report=True)
     _print_summary(res.summary, out)
     return 0
 

@@ -101,6 +101,10 @@ def _compare_frames(where: str, rec: pd.DataFrame, new: pd.DataFrame, keys: list
     """Differences between two tables by the rows of ``keys``; ``rounded``: a written table, whose
     figures may also differ by one unit of their resolution (:func:`_unit`)."""
     out = []
+    lost = [k for k in keys if k not in rec.columns or k not in new.columns]
+    if lost or not keys:  # (an edited or damaged table: its rows cannot be matched)
+        return [Difference(where, "key columns", ", ".join(k for k in keys if k in rec.columns) or "none",
+                           ", ".join(k for k in keys if k in new.columns) or "none")]
     for c in sorted(set(rec.columns) ^ set(new.columns)):
         out.append(Difference(where, f"column {c}", "present" if c in rec else "absent",
                               "present" if c in new else "absent"))
@@ -152,6 +156,9 @@ def compare_runs(recorded: Path, replayed: Path, rtol: float = RTOL, atol: float
                               json.loads((replayed / "summary.json").read_text()), rtol, atol)
     v_rec = pd.read_csv(recorded / "vehicles.csv", dtype={"vehicle_id": str})
     v_new = pd.read_csv(replayed / "vehicles.csv", dtype={"vehicle_id": str})
+    if "vehicle_id" not in v_rec.columns or "vehicle_id" not in v_new.columns:  # (edited or damaged)
+        return diffs + [Difference("vehicles.csv", "column vehicle_id", *("present" if "vehicle_id" in t.columns
+                                                                          else "absent" for t in (v_rec, v_new)))]
     corridor = "leg" in v_rec.columns and "leg" in v_new.columns and (
         v_rec["vehicle_id"].duplicated().any() or v_new["vehicle_id"].duplicated().any())
     keys = ["vehicle_id", "leg"] if corridor else ["vehicle_id"]  # (on a corridor a row per crossing)
@@ -174,8 +181,8 @@ def compare_runs(recorded: Path, replayed: Path, rtol: float = RTOL, atol: float
             except (ValueError, pd.errors.EmptyDataError) as exc:  # (an emptied or garbled table)
                 diffs.append(Difference(name, "readable", False, f"{type(exc).__name__}: {exc}"))
                 continue
-            diffs += _compare_frames(name, a, b, [k for k in keys if k in a.columns and k in b.columns], rtol, atol,
-                                     limit, rounded=True)
+            diffs += _compare_frames(name, a, b, [k for k in keys if k in a.columns or k in b.columns] or keys, rtol,
+                                     atol, limit, rounded=True)
     r_rec, r_new = recorded / "sumo" / "routes.rou.xml", replayed / "sumo" / "routes.rou.xml"
     if r_rec.is_file() != r_new.is_file():
         diffs.append(Difference("sumo/routes.rou.xml", "file", r_rec.is_file(), r_new.is_file()))
@@ -323,8 +330,12 @@ def replay(run_dir: Path, out: Path | None = None, rtol: float = RTOL, atol: flo
         a, b = Path(out).resolve(), run_dir.resolve()
         if a == b or a.is_relative_to(b) or b.is_relative_to(a):
             raise ReplayError(f"--out {out} would overwrite the run it verifies ({run_dir}): give another folder")
+        from runners.single import read_manifest
+
         if Path(out).is_dir() and any(Path(out).iterdir()) and not force:
-            raise ReplayError(f"--out {out} is not empty: choose another folder, or --force to replace the run in it")
+            replace = ", or --force to replace the run in it" if read_manifest(Path(out)) is not None else (
+                " (it holds no run's manifest.json: files of your own?)")
+            raise ReplayError(f"--out {out} is not empty: choose another folder{replace}")
         control = f"sumo_{recorded['junction_type']}" if recorded.get("junction_type") else "nrtraffic"
         try:
             claim_run_dir(Path(out), sc, None, None, control, force)

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from runners.sweep import (NRTRAFFIC, check_out, check_resume, make_out, parse_seeds, plan, record_tables, remove_stale,
-                           run_sweep)
+from runners.sweep import (NRTRAFFIC, SweepError, check_out, check_resume, check_where, failed_advice, make_out,
+                           parse_seeds, plan, record_tables, remove_stale, run_sweep)
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -111,9 +111,15 @@ def main(args) -> int:
     from runners.clusters import from_args
 
     batch = from_args(args)
+    check_where(args.workers, args.scheduler, batch)
     out = Path(args.out)
     check_out(out)  # (as a sweep's: not in another sweep's folder, no file of the user's replaced)
     todo = jobs(out)
+    mine = {Path(j.run_dir).relative_to(out / "runs").parts[0] for j in todo}
+    other = sorted(p.name for p in (out / "runs").iterdir() if p.name not in mine) if (out / "runs").is_dir() else []
+    if other:  # (another sweep's folder: its tables would be replaced by this study's)
+        raise SweepError(f"--out {out} holds another sweep's runs (runs/{other[0]}): choose an empty folder, or the "
+                         "folder of an earlier robustness study to resume")
     make_out(out)
     check_resume(todo, force=args.force)
     remove_stale(out)
@@ -123,5 +129,5 @@ def main(args) -> int:
     print((Path(args.out) / "sweep.md").read_text())
     failed = int((df["status"] != "ok").sum())
     if failed:
-        print(f"{failed} of {len(df)} runs failed; re-run the same command to retry them")
+        print(failed_advice(df))
     return 1 if failed else 0

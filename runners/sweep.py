@@ -226,7 +226,7 @@ def plan(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]]
     from runners.single import check, check_demand
 
     keys = [k for k, _ in grid]
-    jobs = []
+    jobs, seen = [], []
     for values in itertools.product(*[v for _, v in grid]):
         point = tuple(zip(keys, values))
         ov = tuple(overrides) + tuple(f"{k}={v}" for k, v in point)
@@ -241,6 +241,13 @@ def plan(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]]
         if any(c != NRTRAFFIC for c in controls) and not sc.controlled_junctions():
             raise SweepError("--baseline needs a scenario with a [junction]")
         config = sc.to_dict()
+        named = point_name(point)
+        twin = next((p for p in seen if point_name(p) == named), None) if point else None
+        if twin is not None:  # (one folder for two grid points: one of them would fail as "another configuration")
+            raise SweepError(f"--grid: the points {', '.join(f'{k}={v}' for k, v in twin)} and "
+                             f"{', '.join(f'{k}={v}' for k, v in point)} have one folder name ({named}); give values "
+                             "that differ in letters or digits")
+        seen.append(point)
         for seed in seeds:
             for control in controls:
                 d = Path(out) / "runs" / point_name(point) / f"seed{seed}" / control
@@ -1204,14 +1211,10 @@ def record_tables(out: Path, written: bool, planned=()) -> None:
     _write_json(out / MANIFEST, m)
 
 
-def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]]], controls: list[str], out: Path,
-          duration_s: float | None = None, overrides: tuple[str, ...] = (), workers: int = 2,
-          scheduler: str | None = None, force: bool = False, progress: bool = True,
-          allow_outside: bool = False, batch=None) -> pd.DataFrame:
-    """A whole sweep (``nrtraffic sweep``, ``nrtraffic.sweep``): check its size and every grid
-    point's configuration, refuse a resume of another configuration (unless ``force``), then
-    :func:`run_sweep` (``batch``: on Slurm or PBS, see :mod:`runners.clusters`). Returns
-    ``sweep.csv`` as a DataFrame."""
+def check_where(workers, scheduler: str | None, batch=None) -> int:
+    """``--workers`` (a whole number, at least 1 and at most :data:`WORKERS_PER_CORE` per core of
+    a local cluster) and ``--scheduler`` (a Dask address) checked (:class:`SweepError`); the
+    number of workers."""
     if isinstance(workers, bool) or not isinstance(workers, numbers.Integral):  # (the API: 1.5 failed inside Dask)
         raise SweepError(f"workers={workers!r}: give a whole number of worker processes")
     workers = int(workers)
@@ -1223,6 +1226,18 @@ def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]
     if scheduler is None and batch is None and workers > WORKERS_PER_CORE * cores:
         raise SweepError(f"--workers {workers}: this machine has {cores} cores; a local cluster takes at most "
                          f"{WORKERS_PER_CORE * cores} workers (each runs one simulation at a time)")
+    return workers
+
+
+def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]]], controls: list[str], out: Path,
+          duration_s: float | None = None, overrides: tuple[str, ...] = (), workers: int = 2,
+          scheduler: str | None = None, force: bool = False, progress: bool = True,
+          allow_outside: bool = False, batch=None) -> pd.DataFrame:
+    """A whole sweep (``nrtraffic sweep``, ``nrtraffic.sweep``): check its size and every grid
+    point's configuration, refuse a resume of another configuration (unless ``force``), then
+    :func:`run_sweep` (``batch``: on Slurm or PBS, see :mod:`runners.clusters`). Returns
+    ``sweep.csv`` as a DataFrame."""
+    workers = check_where(workers, scheduler, batch)
     n = len(seeds) * len(controls) * math.prod(len(v) for _, v in grid)
     if n > MAX_RUNS and not force:
         raise SweepError(f"the sweep has {n} runs, more than {MAX_RUNS}: narrow --seeds or --grid, or --force to "
@@ -1280,6 +1295,18 @@ def main(args) -> int:
     if n_failed:
         for _, r in df[df["status"] != "ok"].iterrows():
             print(f"failed: {r['run_dir']}: {r['error']}")
-        print(f"{n_failed} of {len(df)} runs failed; re-run the same command to retry them")
+        print(failed_advice(df))
         return 1
     return 0
+
+
+def failed_advice(df: pd.DataFrame) -> str:
+    """The closing line of a sweep with failed runs: a retry where a run may succeed again, the
+    scenario to fix where its configuration was refused once SUMO had read the network."""
+    bad = df[df["status"] != "ok"]
+    refused = bad["error"].astype(str).str.startswith(("NetworkError", "ScenarioError")).sum()
+    if refused == len(bad):
+        return (f"{len(bad)} of {len(df)} runs failed: their scenario was refused (the errors above name the key to "
+                "fix); a retry fails the same way")
+    retry = f"{len(bad)} of {len(df)} runs failed; re-run the same command to retry them"
+    return retry + (f" ({refused} were refused for their scenario: fix it first)" if refused else "")

@@ -135,8 +135,8 @@ def test_api_sweep_grid_values_are_kept_whole(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize("seeds, grid, message", [
-    ([1.5], None, "1.5 is not a whole number"),  # (run as seed 1)
-    ([True], None, "True is not a whole number"),
+    ([1.5], None, "1.5 is not an integer"),  # (run as seed 1)
+    ([True], None, "True is not an integer"),
     ([1], {"demand.rate_veh_h": [300, 300.0]}, "300 and 300.0 are the same value"),  # (one point run twice)
 ])
 def test_api_sweep_refuses_what_the_command_line_refuses(seeds, grid, message, tmp_path):

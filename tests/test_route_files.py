@@ -323,12 +323,14 @@ def test_demand_scale_keeps_copies_or_leaves_out_a_route_files_vehicles_as_sumos
 
 
 def test_stops_in_a_route_file_are_left_out_with_a_warning(tmp_path):
-    """<stop> elements were dropped from the run's routes without a word. (A corridor with a
+    """<stop> elements, and persons, were dropped from the run's routes without a word. (A corridor with a
     direction that no vehicle drove failed its report: its arterial series added text to numbers.)"""
     d = _corridor(tmp_path, '<routes>\n    <vehicle id="x" depart="1"><route edges="W_J1 J1_J2"/>'
-                            '<stop lane="J1_J2_0" endPos="50" duration="5"/></vehicle>\n</routes>\n')
+                            '<stop lane="J1_J2_0" endPos="50" duration="5"/></vehicle>\n'
+                            '    <person id="p" depart="1"><walk edges="W_J1 J1_J2"/></person>\n</routes>\n')
     out = tmp_path / "run"
     r = _run(["run", d / "scenario.toml", "--duration", "30", "--set", "outputs.warmup_s=0", "--out", out])
     assert r.returncode == 0, r.stderr
     warnings = json.loads((out / "summary.json").read_text())["warnings"]
     assert any("its 1 <stop> elements are left out" in w for w in warnings), warnings
+    assert any("its 1 persons and containers are left out" in w for w in warnings), warnings  # (said nothing)

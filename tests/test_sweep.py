@@ -234,3 +234,18 @@ def test_a_run_that_is_not_the_jobs_says_why(tmp_path):
     assert unfinished(job) == "its summary.json cannot be read"
     (d / "summary.json").write_text(json.dumps({"status": "ok", "seed": 3, "sim_time_s": 600.0}))
     assert unfinished(job) is None and finished(job)["seed"] == 3
+
+
+def test_a_sweep_whose_runs_were_refused_for_their_scenario_does_not_say_retry():
+    """Runs refused for their scenario once SUMO had read the network (NetworkError,
+    ScenarioError) are not worth a retry, and the sweep's last line says so (it had said
+    "re-run the same command to retry them" of every failure)."""
+    from runners.sweep import failed_advice
+
+    def table(errors):
+        return pd.DataFrame({"status": ["ok"] + ["failed"] * len(errors), "error": [""] + errors})
+
+    assert "a retry fails the same way" in failed_advice(table(["NetworkError: movement x: its path ..."]))
+    assert failed_advice(table(["KilledWorker: ..."])) == "1 of 2 runs failed; re-run the same command to retry them"
+    mixed = failed_advice(table(["KilledWorker: ...", "ScenarioError: ..."]))
+    assert "retry them" in mixed and "1 were refused for their scenario" in mixed

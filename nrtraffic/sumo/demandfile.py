@@ -207,6 +207,11 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
         raise DemandFileError(f"demand.sumo_routes {label}: cannot be read as XML: {exc}") from None
     routes = {r.get("id"): r.get("edges", "").split() for r in root.findall("route")}
     vclass = {t.get("id"): t.get("vClass", "passenger") for t in root.iter("vType")}
+    distributions = {d.get("id") for d in root.iter("routeDistribution")}
+    persons = sum(1 for el in root if el.tag in ("person", "personFlow", "container", "containerFlow"))
+    if persons and notes is not None:
+        notes.append(f"demand.sumo_routes: its {persons} persons and containers are left out (the run has vehicles "
+                     "only)")
     stops = sum(1 for _ in root.iter("stop"))
     if stops and notes is not None:
         notes.append(f"demand.sumo_routes: its {stops} <stop> elements are left out (the run's vehicles drive their "
@@ -251,6 +256,9 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
         ref = el.get("route")
         if ref is not None:
             if ref not in routes:
+                if ref in distributions:
+                    raise DemandFileError(f"{where}: route {ref!r} is a <routeDistribution>, which the run does not "
+                                          "take: give each vehicle its own route (duarouter writes them)")
                 raise DemandFileError(f"{where}: route {ref!r} is not defined in the file")
             return routes[ref]
         raise DemandFileError(f"{where}: needs from/to, a route attribute or an inner <route>")
