@@ -561,6 +561,8 @@ _ROUTE_CASES = {
                   'edges="W_in E_out"/>', "gives both period and vehsPerHour; give one rate"),
     "negative_number": ('<flow id="x" route="r" begin="0" end="100" number="-3"/><route id="r" edges="W_in E_out"/>'
                         '<vehicle id="v" route="r" depart="1"/>', "number=-3 is negative"),
+    "route_distribution": ('<routeDistribution id="rd"><route id="r1" edges="W_in E_out" probability="1"/>'
+                           '</routeDistribution><vehicle id="v" route="rd" depart="1"/>', "is a <routeDistribution>"),
     "fractional_number": ('<flow id="x" route="r" begin="0" end="100" number="2.5"/><route id="r" edges="W_in E_out"/>',
                           "number='2.5' is not a whole number of vehicles"),
     "end_before_begin": ('<flow id="x" route="r" begin="50" end="10" period="2"/><route id="r" edges="W_in E_out"/>'
@@ -960,6 +962,8 @@ def test_a_sweep_stopped_while_it_writes_its_tables_resumes(tmp_path, monkeypatc
     (["--grid", "demand.rate_veh_h=400,,600"], "an empty value between or after its commas"),
     (["--grid", "demand.rate_veh_h=400,"], "an empty value between or after its commas"),
     (["--baseline", "priority,"], "an empty name between or after its commas"),
+    # two values whose folder names are one: the second had failed as "another configuration"
+    (["--grid", 'scenario.description="a/b","a_b"', "--set", "outputs.warmup_s=0"], "have one folder name"),
     # a bad value at one grid point: the message says which point
     (["--grid", "demand.rate_veh_h=400,-5", "--set", "outputs.warmup_s=0"],
      "at the grid point demand.rate_veh_h=-5: "),
@@ -1240,3 +1244,88 @@ def test_a_run_without_a_duration_ends_when_every_vehicle_stands_still(tmp_path,
     assert s["status"] == "gridlock" and s["sim_time_s"] < 200
     veh = pd.read_csv(out / "vehicles.csv").set_index("vehicle_id")
     assert veh.loc["a1", "status"] == "released"  # (crossed, and left to SUMO after its merging zone)
+
+
+@pytest.mark.parametrize("table, line", [("vehicles.csv", "garbage,,"), ("movements.csv", "a,b"),
+                                         ("approaches.csv", "a,b")])
+def test_a_damaged_table_is_a_difference_for_replay_and_an_error_for_compare(table, line, tmp_path, capsys):
+    """A run table without its key columns (edited or damaged) is a difference of the replay's
+    comparison, and ``compare`` refuses the run (exit 2) naming the file; both had ended in a
+    traceback (KeyError, ValueError)."""
+    import shutil
+
+    from runners.replay import compare_runs
+
+    golden = ROOT / "tests" / "golden" / "cross4"
+    run = tmp_path / "run"
+    shutil.copytree(golden, run)
+    (run / table).write_text(line + "\n")
+    diffs = compare_runs(golden, run)
+    assert any(d.where == table for d in diffs)
+    assert main(["compare", str(golden), str(run), "--out", str(tmp_path / "cmp")]) == 2
+    assert f"{table} has no column" in capsys.readouterr().err and not (tmp_path / "cmp").exists()
+
+
+def test_checks_after_the_network_is_read_leave_no_folder(tmp_path, capsys):
+    """A scenario refused once its junction is built (a merging zone its paths do not reach, a
+    turn too tight), and a baseline of a scenario without a junction, exit 2 and leave no folder
+    (the run's folder, with the folders made for it, had stayed)."""
+    deep = tmp_path / "a" / "b"
+    for flags in (["--set", "zones.merging_zone_m=1"], ["--set", "controller.steer_max_rad=0.05"]):
+        assert main(["run", str(CROSS4), "--duration", "5", "--set", "outputs.warmup_s=0", *flags, "--out", str(deep),
+                     "--no-progress"]) == 2
+        assert "scenario error" in capsys.readouterr().err
+        assert not (tmp_path / "a").exists()
+    assert main(["baseline", str(SCENARIOS / "paper_cbf"), "--junction", "priority", "--out", str(deep),
+                 "--no-progress"]) == 2
+    assert "baselines need a scenario with a [junction]" in capsys.readouterr().err and not (tmp_path / "a").exists()
+
+
+def test_bench_write_is_checked_before_the_benchmark_runs(tmp_path, capsys):
+    """``bench --write`` to a folder, a name ending in a slash or a missing folder exits 2 at once
+    (it had run the whole benchmark first, then failed with exit 1); so does ``schema --write``
+    with a trailing slash (it wrote a file of that name)."""
+    for where in (str(tmp_path), str(tmp_path / "x.md") + "/", str(tmp_path / "no" / "x.md")):
+        for cmd in (["bench", "--quick"], ["schema"]):
+            assert main([*cmd, "--write", where]) == 2
+            assert f"--write {where}" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())
+
+
+def test_robustness_checks_its_workers_and_refuses_another_sweeps_folder(tmp_path, capsys):
+    """``robustness`` takes ``--workers`` as ``sweep`` does (0 had started a study that never
+    ran, 100 a hundred worker processes on two cores), and refuses a folder holding another
+    sweep's runs (it had written its own beside them, and would replace their tables)."""
+    for workers, message in (("0", "need at least one worker"), ("100000", "a local cluster takes at most")):
+        assert main(["robustness", "--out", str(tmp_path / "r"), "--workers", workers, "--no-progress"]) == 2
+        assert message in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
+    other = tmp_path / "other"
+    (other / "runs" / "base" / "seed1").mkdir(parents=True)
+    (other / "manifest.json").write_text(json.dumps({"sweep": 1, "preexisting": [], "created": ["sweep.csv"]}))
+    assert main(["robustness", "--out", str(other), "--no-progress"]) == 2
+    assert "holds another sweep's runs (runs/base)" in capsys.readouterr().err
+
+
+def test_a_vehicle_inserted_standing_sets_off_and_crosses(tmp_path):
+    """A route file's vehicle with ``departSpeed="0"`` sets off as SUMO's driver would and
+    crosses (it had been held at 0 m/s for the whole run, and the run said "ok"); its delay is
+    counted against a free flow at the entry speed (it had been -inf)."""
+    d = copy_scenario("cross4", tmp_path / "c4")
+    (d / "d.rou.xml").write_text('<routes><route id="ws" edges="W_in E_out"/>'
+                                 '<vehicle id="v" route="ws" depart="1" departSpeed="0"/></routes>\n')
+    out = tmp_path / "o"
+    assert main(["run", str(d), "--duration", "60", "--set", 'demand.sumo_routes="d.rou.xml"', "--set",
+                 "demand.rate_veh_h=0", "--set", "outputs.warmup_s=0", "--out", str(out), "--no-progress"]) == 0
+    v = pd.read_csv(out / "vehicles.csv").set_index("vehicle_id").loc["v"]
+    assert v["t_exit_s"] < 60 and 0 <= v["delay_s"] < 10
+
+
+def test_an_open_ended_run_that_ends_before_its_window_says_so(tmp_path):
+    """``--duration 0`` with a warm-up past the run's end: the run says that its measurement
+    window is empty (it said nothing, "ok" with no figure measured)."""
+    out = tmp_path / "o"
+    assert main(["run", str(CROSS4), "--duration", "0", "--set", "outputs.warmup_s=200", "--set", "demand.end_s=30",
+                 "--out", str(out), "--no-progress"]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["measure_to_s"] < 200 and any("the measurement window is empty" in w for w in s["warnings"])

@@ -44,6 +44,9 @@ SPEED_BOUND_MPS = 70.0
 BATCH_CLOSE_S = 1.0
 
 
+MIN_CRUISE_MPS = 1.0  # slower than this at insertion, a vehicle is not held at its speed on its way [m/s]
+
+
 class Admission:
     """The admission decisions of every controlled junction of a run (``st``: its
     :class:`~nrtraffic.state.RunState`; ``departures``: vehicle id -> ``(route, depart_s,
@@ -64,6 +67,8 @@ class Admission:
         if vid not in self.scheduled:  # not of the demand
             return
         trip, t, speed = self.scheduled.pop(vid)
+        if speed < MIN_CRUISE_MPS:  # (inserted standing: its free-flow time is at the entry speed)
+            speed = st.sc.demand.entry_speed_mps
         lv = self.listed.get(vid)
         human = vid in self.human_ids
         legs = st.itineraries.get(trip, (trip,))
@@ -89,7 +94,10 @@ class Admission:
         if rec.controlled:
             st.life.move(vid, State.APPROACHING)
             st.sumo.colour(vid, "approaching")
-            st.sumo.hold_speed(vid, st.sumo.speed(vid))
+            v = st.sumo.speed(vid)
+            if v >= MIN_CRUISE_MPS:  # (it cruises to its control zone at the speed it was inserted at)
+                st.sumo.hold_speed(vid, v)
+            # (inserted standing, departSpeed="0": SUMO's driver takes it there, as a car setting off)
         else:
             st.life.move(vid, State.SUMO)
             if rec.driver == "human" and st.control:
