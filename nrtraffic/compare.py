@@ -76,7 +76,8 @@ def _check(run_dir: Path) -> dict:
         try:
             columns = pd.read_csv(run_dir / name, nrows=0).columns
         except (OSError, ValueError) as exc:
-            raise CompareError(f"{run_dir}/{name} cannot be read ({type(exc).__name__}): run it again") from None
+            raise CompareError(f"{run_dir}: its tables cannot be read ({name}: {type(exc).__name__}); run it "
+                               "again") from None
         lost = [c for c in needed if c not in columns]
         if lost:
             raise CompareError(f"{run_dir}/{name} has no column {', '.join(lost)}: not a run's table (edited or "

@@ -44,7 +44,9 @@ SPEED_BOUND_MPS = 70.0
 BATCH_CLOSE_S = 1.0
 
 
-MIN_CRUISE_MPS = 1.0  # slower than this at insertion, a vehicle is not held at its speed on its way [m/s]
+# slower than this at insertion [m/s], a vehicle is not held at its speed on its way (SUMO's driver sets
+# off with it) and its free-flow time is at the entry speed
+MIN_CRUISE_MPS = 1.0
 
 
 class Admission:
@@ -67,8 +69,7 @@ class Admission:
         if vid not in self.scheduled:  # not of the demand
             return
         trip, t, speed = self.scheduled.pop(vid)
-        if speed < MIN_CRUISE_MPS:  # (inserted standing: its free-flow time is at the entry speed)
-            speed = st.sc.demand.entry_speed_mps
+        speed = speed if speed >= MIN_CRUISE_MPS else st.sc.demand.entry_speed_mps  # (inserted standing)
         lv = self.listed.get(vid)
         human = vid in self.human_ids
         legs = st.itineraries.get(trip, (trip,))
@@ -94,10 +95,8 @@ class Admission:
         if rec.controlled:
             st.life.move(vid, State.APPROACHING)
             st.sumo.colour(vid, "approaching")
-            v = st.sumo.speed(vid)
-            if v >= MIN_CRUISE_MPS:  # (it cruises to its control zone at the speed it was inserted at)
-                st.sumo.hold_speed(vid, v)
-            # (inserted standing, departSpeed="0": SUMO's driver takes it there, as a car setting off)
+            if st.sumo.speed(vid) >= MIN_CRUISE_MPS:  # (cruising to its zone; one inserted standing sets off)
+                st.sumo.hold_speed(vid, st.sumo.speed(vid))
         else:
             st.life.move(vid, State.SUMO)
             if rec.driver == "human" and st.control:
