@@ -814,6 +814,10 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
             f"unknown section(s) {', '.join(sorted(unknown))}; known: "
             f"{', '.join(sorted(list(_SECTIONS) + ['approaches', 'vehicles', 'junctions']))}"
         )
+    at_junction = (isinstance(data.get("junction"), dict) and data["junction"].get("id")) or data.get("junctions")
+    if at_junction and isinstance(data.get("coordinator", {}), dict) and "terminal_speed" not in data.get(
+            "coordinator", {}):  # (a junction's default: the paper's free terminal speed collides there)
+        data.setdefault("coordinator", {})["terminal_speed"] = "fixed"
     parts = {_ATTR[k]: _section(k, cls, data.get(k, {})) for k, cls in _SECTIONS.items()}
     jl = data.get("junctions", [])
     if not isinstance(jl, list):
@@ -877,6 +881,10 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
         if sc.coordinator.conflict_model != "conflict_points":
             raise ScenarioError('demand.controlled_share < 1 needs coordinator.conflict_model = "conflict_points" '
                                 "(human drivers' crossings are reserved per conflict area)")
+    if sc.controlled_junctions() and sc.coordinator.terminal_speed == "free":
+        raise ScenarioError('coordinator.terminal_speed = "free" at a junction lets a held-back car cross its merging '
+                            "zone slower than its reservation, and the cars after it run into it: use \"fixed\" (the "
+                            "default at a junction), or leave the key out")
     if sc.network_path.is_dir():
         raise ScenarioError(f"scenario.network = {sc.general.network!r} is a folder, not a network file: name the "
                             ".net.xml file in it")

@@ -1329,3 +1329,27 @@ def test_an_open_ended_run_that_ends_before_its_window_says_so(tmp_path):
                  "--out", str(out), "--no-progress"]) == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["measure_to_s"] < 200 and any("the measurement window is empty" in w for w in s["warnings"])
+
+
+def test_a_minimal_junction_scenario_is_safe_by_default(tmp_path, capsys):
+    """A scenario of a .sumocfg and a junction id, every other key at its default, on cross4's
+    network and route file: no collision (with the paper's free terminal speed, the default of a
+    plain road, it had 23 in SUMO's check and 40 in the own one). At a junction the terminal speed
+    defaults to "fixed", and "free" is refused (exit 2) naming the key."""
+    import shutil
+
+    d = tmp_path / "cf"
+    d.mkdir()
+    for f in ("net.net.xml", "demand.rou.xml"):
+        shutil.copy(SCENARIOS / "cross4" / f, d / f)
+    (d / "c.sumocfg").write_text('<configuration><input><net-file value="net.net.xml"/>'
+                                 '<route-files value="demand.rou.xml"/></input></configuration>\n')
+    (d / "scenario.toml").write_text('[scenario]\nname = "cf"\nsumocfg = "c.sumocfg"\n[junction]\nid = "C"\n'
+                                     '[outputs]\nwarmup_s = 0.0\n')
+    assert main(["run", str(d), "--duration", "0", "--out", str(tmp_path / "o"), "--no-progress"]) == 0
+    s = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert s["vehicles_completed"] == 258 and s["collisions"] == 0 and s["collisions_geometric"] == 0
+    assert 'terminal_speed = "fixed"' in (tmp_path / "o" / "scenario.resolved.toml").read_text()
+    assert main(["run", str(d), "--duration", "5", "--set", 'coordinator.terminal_speed="free"', "--out",
+                 str(tmp_path / "f"), "--no-progress"]) == 2
+    assert 'coordinator.terminal_speed = "free" at a junction' in capsys.readouterr().err
