@@ -96,7 +96,7 @@ def claim(out: Path, sc, seed, duration, control: str, force: bool) -> list[Path
 
 
 @contextlib.contextmanager
-def _refused(out: Path, new: list[Path]):
+def refused(out: Path, new: list[Path]):
     """Around a run after :func:`claim`: a scenario error (exit 2) before SUMO starts leaves
     nothing of the run (:func:`give_up`)."""
     from nrtraffic.scenario import ScenarioError
@@ -341,7 +341,7 @@ def run(scenario: str | Path, *, seed: int | None = None, duration_s: float | No
     seed, duration_s = _seed_duration(sc, seed, duration_s)
     out = _out(out, f"{slug(sc.general.name)}-seed{seed}")
     new = claim(out, sc, seed, duration_s, "nrtraffic", force)
-    with _refused(out, new):
+    with refused(out, new):
         run_scenario(sc, out, seed=seed, duration_s=duration_s, progress=progress, report=report)
     return Run(out)
 
@@ -363,7 +363,7 @@ def baseline(scenario: str | Path, junction: str, *, seed: int | None = None, du
         raise scenario_mod.ScenarioError(f"junction={junction!r}: one of {', '.join(BASELINES)}")
     out = _out(out, f"{slug(sc.general.name)}-seed{seed}-{junction}")
     new = claim(out, sc, seed, duration_s, f"sumo_{junction}", force)
-    with _refused(out, new):
+    with refused(out, new):
         run_baseline(sc, junction, out, seed=seed, duration_s=duration_s, progress=progress, report=report)
     return Run(out)
 

@@ -413,13 +413,13 @@ def _main(argv: list[str] | None) -> int:
             return paper.main(args)
         if args.command == "baseline":
             from nrtraffic import scenario
-            from runners.api import _refused
+            from runners.api import refused
             from runners.api import claim as _claim
             from runners.baseline import run_baseline
 
             sc = scenario.load(args.scenario, args.overrides, allow_outside=args.allow_outside)
             new = _claim(args.out, sc, args.seed, args.duration, f"sumo_{args.junction}", args.force)
-            with _refused(args.out, new):
+            with refused(args.out, new):
                 res = run_baseline(sc, args.junction, args.out, seed=args.seed, duration_s=args.duration,
                                    progress=not args.no_progress, report=True)
             _print_summary(res.summary, args.out)
@@ -481,7 +481,7 @@ def _main(argv: list[str] | None) -> int:
 def _cmd_run(args) -> int:
     from nrtraffic import scenario
     from runners.api import OutputError, slug
-    from runners.api import _refused
+    from runners.api import refused
     from runners.api import claim as _claim
     from runners.single import run_scenario
 
@@ -493,7 +493,7 @@ def _cmd_run(args) -> int:
         if no_display:
             raise OutputError(no_display)  # (exit 2, before SUMO starts)
     new = _claim(out, sc, seed, args.duration, "nrtraffic", args.force)
-    with _refused(out, new):
+    with refused(out, new):
         res = run_scenario(sc, out, seed=seed, duration_s=args.duration, progress=not args.no_progress,
                            gui=args.gui, gui_delay_ms=args.gui_delay, report=True)
     _print_summary(res.summary, out)
