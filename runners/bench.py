@@ -407,6 +407,11 @@ def main(args) -> int:
     write = writable_file(args.write) if args.write else (Path(default) if default else None)
     if args.scale:
         figure = write.with_suffix(".png") if write is not None else None
+        if figure is not None and figure.exists() and not write.exists():  # (a figure of the user's, not a table's)
+            from runners.api import OutputError
+
+            raise OutputError(f"--write {write}: the scale benchmark's figure goes beside it as {figure}, which "
+                              "exists and is no earlier benchmark's (no table beside it); choose another name")
         table = "\n".join(["# nrtraffic scale benchmark", "", *scale_section(
             120.0 if args.quick else 600.0, figure, district_hour=not args.quick)]) + "\n"
     else:

@@ -328,8 +328,11 @@ def replay(run_dir: Path, out: Path | None = None, rtol: float = RTOL, atol: flo
         from runners.single import claim_run_dir
 
         a, b = Path(out).resolve(), run_dir.resolve()
-        if a == b or a.is_relative_to(b) or b.is_relative_to(a):
-            raise ReplayError(f"--out {out} would overwrite the run it verifies ({run_dir}): give another folder")
+        linked = next((f for f in run_dir.rglob("*") if f.resolve().is_relative_to(a)), None)
+        if a == b or a.is_relative_to(b) or b.is_relative_to(a) or linked is not None:
+            raise ReplayError(f"--out {out} would overwrite the run it verifies ({run_dir}"
+                              f"{f', whose {linked.name} is a link into it' if linked is not None else ''}): give "
+                              "another folder")
         from runners.single import read_manifest
 
         if Path(out).is_dir() and any(Path(out).iterdir()) and not force:

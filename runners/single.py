@@ -317,12 +317,12 @@ def in_a_sweep(path: Path) -> Path | None:
     wrote), that sweep's folder (above its ``runs/``); None."""
     from runners.sweep import FINGERPRINT
 
-    p = Path(path).absolute()
-    for q in (p, *p.parents):
-        if read_manifest(q, sweep=True) is not None:
-            return q
-        if (q / FINGERPRINT).is_file():
-            return next((r.parent for r in q.parents if r.name == "runs"), q)
+    for p in dict.fromkeys((Path(path).absolute(), Path(path).resolve())):  # (as given, and through its links)
+        for q in (p, *p.parents):
+            if read_manifest(q, sweep=True) is not None:
+                return q
+            if (q / FINGERPRINT).is_file():
+                return next((r.parent for r in q.parents if r.name == "runs"), q)
     return None
 
 

@@ -1353,3 +1353,35 @@ def test_a_minimal_junction_scenario_is_safe_by_default(tmp_path, capsys):
     assert main(["run", str(d), "--duration", "5", "--set", 'coordinator.terminal_speed="free"', "--out",
                  str(tmp_path / "f"), "--no-progress"]) == 2
     assert 'coordinator.terminal_speed = "free" at a junction' in capsys.readouterr().err
+
+
+def test_links_do_not_get_past_the_run_and_sweep_guards(tmp_path, capsys):
+    """A replay whose run files are links into ``--out`` would overwrite the recording and compare
+    it with itself ("matches"); a run into a sweep's runs/ reached through a link wrote there; a
+    scale benchmark's figure replaced a .png of the user's beside --write. Each exits 2 now and
+    touches nothing."""
+    import shutil
+
+    recorded = tmp_path / "O"
+    shutil.copytree(ROOT / "tests" / "golden" / "cross4", recorded)
+    linked = tmp_path / "R"
+    linked.mkdir()
+    for f in recorded.iterdir():  # (its network and configuration copied, its results linked)
+        if f.name in ("sumo", "scenario.resolved.toml"):
+            (shutil.copytree if f.is_dir() else shutil.copy)(f, linked / f.name)
+        else:
+            (linked / f.name).symlink_to(f)
+    before = (recorded / "summary.json").read_bytes()
+    assert main(["replay", str(linked), "--out", str(recorded), "--force", "--no-progress"]) == 2
+    assert "would overwrite the run it verifies" in capsys.readouterr().err
+    assert (recorded / "summary.json").read_bytes() == before
+    sweep = tmp_path / "sw"
+    (sweep / "runs" / "base").mkdir(parents=True)
+    (sweep / "manifest.json").write_text(json.dumps({"sweep": 1, "preexisting": [], "created": ["sweep.csv"]}))
+    (tmp_path / "lnk").symlink_to(sweep / "runs")
+    assert main(["run", str(CROSS4), "--duration", "5", "--set", "outputs.warmup_s=0", "--out",
+                 str(tmp_path / "lnk" / "new"), "--no-progress"]) == 2
+    assert "lies in the sweep folder" in capsys.readouterr().err and not (sweep / "runs" / "new").exists()
+    (tmp_path / "x.png").write_text("mine")
+    assert main(["bench", "--quick", "--scale", "--write", str(tmp_path / "x.md")]) == 2
+    assert "x.png, which exists" in capsys.readouterr().err and (tmp_path / "x.png").read_text() == "mine"
