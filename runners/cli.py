@@ -81,7 +81,7 @@ def _add_run(sub) -> None:
                         "xvfb-run; vehicles coloured by state: grey approaching, amber waiting for their batch, red "
                         "held, blue under control, green released, white driven by SUMO, purple a human driver "
                         "going to its stop line, pink a human driver whose crossing is reserved)")
-    p.add_argument("--gui-delay", type=_gui_delay, default=GUI_DELAY_MS, metavar="MS",
+    p.add_argument("--gui-delay", type=_gui_delay, default=None, metavar="MS",
                    help=f"with --gui, the wall time each SUMO step takes at least [ms] (default {GUI_DELAY_MS:g}; "
                         "0: as fast as it can)")
 
@@ -488,6 +488,9 @@ def _cmd_run(args) -> int:
     sc = scenario.load(args.scenario, args.overrides, allow_outside=args.allow_outside)
     seed = sc.general.seed if args.seed is None else args.seed
     out = args.out or Path("runs") / f"{slug(sc.general.name)}-seed{seed}"
+    if args.gui_delay is not None and not args.gui:  # (a flag that would do nothing)
+        raise OutputError("--gui-delay sets the delay of --gui, which is not given: add --gui, or leave it out")
+    args.gui_delay = GUI_DELAY_MS if args.gui_delay is None else args.gui_delay
     if args.gui:
         no_display = display_missing(out)
         if no_display:

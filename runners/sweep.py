@@ -1243,6 +1243,11 @@ def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]
         raise SweepError(f"the sweep has {n} runs, more than {MAX_RUNS}: narrow --seeds or --grid, or --force to "
                          "run them all")
     check_grid(grid, duration_s)
+    given = {o.split("=", 1)[0].strip() for o in overrides}
+    both = sorted(given & {k for k, _ in grid}) or sorted(given & {"scenario.seed", "general.seed"})
+    if both:  # (the grid's value, or the run's seed, would override it without a word)
+        raise SweepError(f"--set {both[0]}: " + ("--grid sets it at every point; give it in one of them" if both[0] in
+                                                  dict(grid) else "a sweep's seeds are --seeds; give them there"))
     check_out(Path(out))
     jobs = plan(scenario_path, seeds, grid, controls, out, duration_s, tuple(overrides), allow_outside=allow_outside)
     created = make_out(Path(out))  # (only now: a sweep refused above leaves nothing)

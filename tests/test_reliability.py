@@ -962,6 +962,9 @@ def test_a_sweep_stopped_while_it_writes_its_tables_resumes(tmp_path, monkeypatc
     (["--grid", "demand.rate_veh_h=400,,600"], "an empty value between or after its commas"),
     (["--grid", "demand.rate_veh_h=400,"], "an empty value between or after its commas"),
     (["--baseline", "priority,"], "an empty name between or after its commas"),
+    # a --set that the grid or --seeds would override without a word
+    (["--grid", "demand.rate_veh_h=100,200", "--set", "demand.rate_veh_h=300"], "--grid sets it at every point"),
+    (["--set", "scenario.seed=5"], "a sweep's seeds are --seeds"),
     # two values whose folder names are one: the second had failed as "another configuration"
     (["--grid", 'scenario.description="a/b","a_b"', "--set", "outputs.warmup_s=0"], "have one folder name"),
     # a bad value at one grid point: the message says which point
@@ -1385,3 +1388,10 @@ def test_links_do_not_get_past_the_run_and_sweep_guards(tmp_path, capsys):
     (tmp_path / "x.png").write_text("mine")
     assert main(["bench", "--quick", "--scale", "--write", str(tmp_path / "x.md")]) == 2
     assert "x.png, which exists" in capsys.readouterr().err and (tmp_path / "x.png").read_text() == "mine"
+
+
+def test_gui_delay_without_gui_is_refused(tmp_path, capsys):
+    """``--gui-delay`` without ``--gui`` would do nothing: exit 2 naming both (it ran, exit 0)."""
+    assert main(["run", str(CROSS4), "--duration", "5", "--gui-delay", "50", "--out", str(tmp_path / "o"),
+                 "--no-progress"]) == 2
+    assert "--gui-delay sets the delay of --gui" in capsys.readouterr().err and not (tmp_path / "o").exists()
