@@ -243,6 +243,11 @@ def test_compare_refuses_unfinished_runs_and_other_scenarios(cross4_pair, corrid
         assert main(["compare", *map(str, dirs), "--out", str(tmp_path / "cmp")]) == 2
         assert message in capsys.readouterr().err
     assert not (tmp_path / "cmp").exists()
+    tl = cross4_pair / "tl"
+    for into in (tl, tl / "sumo", tl / "new"):  # (a run's folder, or one in it: its files had gone there)
+        assert main(["compare", str(nr), str(tl), "--out", str(into)]) == 2
+        assert "write the comparison into another folder" in capsys.readouterr().err
+    assert not (tl / "new").exists() and not (tl / "sumo" / "compare.html").exists()
 
 
 def test_a_one_point_sweep_draws_a_bar_per_control_with_its_interval(tmp_path, monkeypatch):
