@@ -44,6 +44,9 @@ class General:
     def validate(self) -> None:
         if not self.network:
             raise ScenarioError("scenario.network is required (path of the SUMO .net.xml)")
+        if not self.name.strip() or not self.name.isprintable():  # (it names the run's folder and its tables' rows)
+            raise ScenarioError(f"scenario.name = {self.name!r}: give a name of printable characters (it names the run "
+                                "in its folder, summaries and sweep tables)")
 
 
 @dataclass(frozen=True)

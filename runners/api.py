@@ -304,6 +304,17 @@ def _path(value, name: str) -> Path:
     return Path(value)
 
 
+def _flag(value, name: str) -> bool:
+    """A yes/no argument of the Python API: a bool (``force="no"`` had counted as yes)."""
+    import numpy as np
+
+    from nrtraffic.scenario import ScenarioError
+
+    if not isinstance(value, (bool, np.bool_)):
+        raise ScenarioError(f"{name}={value!r}: give True or False")
+    return bool(value)
+
+
 def _out(out, prefix: str) -> Path:
     if out is not None:
         return _path(out, "out")
@@ -340,7 +351,7 @@ def run(scenario: str | Path, *, seed: int | None = None, duration_s: float | No
     sc = scenario_mod.load(_path(scenario, "scenario"), settings(overrides), allow_outside=allow_outside)
     seed, duration_s = _seed_duration(sc, seed, duration_s)
     out = _out(out, f"{slug(sc.general.name)}-seed{seed}")
-    new = claim(out, sc, seed, duration_s, "nrtraffic", force)
+    new = claim(out, sc, seed, duration_s, "nrtraffic", _flag(force, "force"))
     with refused(out, new):
         run_scenario(sc, out, seed=seed, duration_s=duration_s, progress=progress, report=report)
     return Run(out)
@@ -362,7 +373,7 @@ def baseline(scenario: str | Path, junction: str, *, seed: int | None = None, du
     if junction not in BASELINES:  # (checked before the run folder is made)
         raise scenario_mod.ScenarioError(f"junction={junction!r}: one of {', '.join(BASELINES)}")
     out = _out(out, f"{slug(sc.general.name)}-seed{seed}-{junction}")
-    new = claim(out, sc, seed, duration_s, f"sumo_{junction}", force)
+    new = claim(out, sc, seed, duration_s, f"sumo_{junction}", _flag(force, "force"))
     with refused(out, new):
         run_baseline(sc, junction, out, seed=seed, duration_s=duration_s, progress=progress, report=report)
     return Run(out)
@@ -414,6 +425,6 @@ def sweep(scenario: str | Path, seeds: Iterable[int] | str, *, grid: Mapping[str
     controls = [sweep_mod.NRTRAFFIC] + sweep_mod.parse_baselines(names if names else None)
     out = _out(out, "sweep")
     sweep_mod.study(_path(scenario, "scenario"), seeds, points, controls, out, duration_s=duration_s,
-                    overrides=tuple(settings(overrides)), workers=workers, scheduler=scheduler, force=force,
-                    progress=progress, allow_outside=allow_outside)
+                    overrides=tuple(settings(overrides)), workers=workers, scheduler=scheduler,
+                    force=_flag(force, "force"), progress=progress, allow_outside=allow_outside)
     return Sweep(out)

@@ -169,6 +169,10 @@ def test_api_values_are_checked_before_anything_is_written(tmp_path):
         nrtraffic.sweep(CROSS4, [1], duration_s=float("nan"), out=tmp_path / "d")
     with pytest.raises(SweepError, match="workers=1.5: give a whole number"):
         nrtraffic.sweep(CROSS4, [1], duration_s=5, workers=1.5, out=tmp_path / "c")
+    with pytest.raises(ScenarioError, match="force='no': give True or False"):  # (it had counted as yes)
+        nrtraffic.run(CROSS4, duration_s=5, force="no", out=tmp_path / "h")
+    with pytest.raises(ScenarioError, match="scenario.name = '': give a name of printable characters"):
+        nrtraffic.run(CROSS4, duration_s=5, overrides={"scenario.name": ""}, out=tmp_path / "i")
     with pytest.raises(SweepError, match="seeds=None: give the seeds"):
         nrtraffic.sweep(CROSS4, None, duration_s=5, out=tmp_path / "e")
     for where in ({"scenario": str(CROSS4).encode()}, {"scenario": CROSS4, "out": b"f"}):
