@@ -304,6 +304,19 @@ def _path(value, name: str) -> Path:
     return Path(value)
 
 
+def one_source(overrides, seed, duration_s) -> None:
+    """Refuse (ScenarioError, exit 2) a seed or duration given both as a flag and as a ``--set``
+    of its scenario key: the flag wins, and the setting would be dropped without a word."""
+    from nrtraffic.scenario import ScenarioError
+
+    keys = {str(o).split("=", 1)[0].strip() for o in overrides}
+    for value, flag, names in ((seed, "--seed", ("scenario.seed", "general.seed")),
+                               (duration_s, "--duration", ("scenario.duration_s", "general.duration_s"))):
+        both = keys & set(names)
+        if value is not None and both:
+            raise ScenarioError(f"{flag} and --set {sorted(both)[0]} both give it: give one of them")
+
+
 def _flag(value, name: str) -> bool:
     """A yes/no argument of the Python API: a bool (``force="no"`` had counted as yes)."""
     import numpy as np
@@ -348,7 +361,10 @@ def run(scenario: str | Path, *, seed: int | None = None, duration_s: float | No
     from nrtraffic import scenario as scenario_mod
     from runners.single import run_scenario
 
-    sc = scenario_mod.load(_path(scenario, "scenario"), settings(overrides), allow_outside=allow_outside)
+    one_source(settings(overrides), seed, duration_s)
+    sc = scenario_mod.load(_path(scenario, "scenario"), settings(overrides),
+                           allow_outside=_flag(allow_outside, "allow_outside"))
+    progress, report = _flag(progress, "progress"), _flag(report, "report")
     seed, duration_s = _seed_duration(sc, seed, duration_s)
     out = _out(out, f"{slug(sc.general.name)}-seed{seed}")
     new = claim(out, sc, seed, duration_s, "nrtraffic", _flag(force, "force"))
@@ -368,7 +384,10 @@ def baseline(scenario: str | Path, junction: str, *, seed: int | None = None, du
     from nrtraffic.sumo.netbuild import BASELINES
     from runners.baseline import run_baseline
 
-    sc = scenario_mod.load(_path(scenario, "scenario"), settings(overrides), allow_outside=allow_outside)
+    one_source(settings(overrides), seed, duration_s)
+    sc = scenario_mod.load(_path(scenario, "scenario"), settings(overrides),
+                           allow_outside=_flag(allow_outside, "allow_outside"))
+    progress, report = _flag(progress, "progress"), _flag(report, "report")
     seed, duration_s = _seed_duration(sc, seed, duration_s)
     if junction not in BASELINES:  # (checked before the run folder is made)
         raise scenario_mod.ScenarioError(f"junction={junction!r}: one of {', '.join(BASELINES)}")
@@ -405,7 +424,7 @@ def sweep(scenario: str | Path, seeds: Iterable[int] | str, *, grid: Mapping[str
     from runners import sweep as sweep_mod
 
     _, duration_s = _seed_duration(None, 0, duration_s)  # (checked as run's; a seed of 0 stands in)
-    if not isinstance(seeds, (str, Iterable)):
+    if not isinstance(seeds, (str, Iterable)) or isinstance(seeds, (bytes, bytearray)):
         raise sweep_mod.SweepError(f"seeds={seeds!r}: give the seeds, e.g. range(1, 21) or \"1:20\"")
     if not isinstance(seeds, str):
         seeds = list(seeds)
@@ -426,5 +445,6 @@ def sweep(scenario: str | Path, seeds: Iterable[int] | str, *, grid: Mapping[str
     out = _out(out, "sweep")
     sweep_mod.study(_path(scenario, "scenario"), seeds, points, controls, out, duration_s=duration_s,
                     overrides=tuple(settings(overrides)), workers=workers, scheduler=scheduler,
-                    force=_flag(force, "force"), progress=progress, allow_outside=allow_outside)
+                    force=_flag(force, "force"), progress=_flag(progress, "progress"),
+                    allow_outside=_flag(allow_outside, "allow_outside"))
     return Sweep(out)

@@ -413,10 +413,11 @@ def _main(argv: list[str] | None) -> int:
             return paper.main(args)
         if args.command == "baseline":
             from nrtraffic import scenario
-            from runners.api import refused
             from runners.api import claim as _claim
+            from runners.api import one_source, refused
             from runners.baseline import run_baseline
 
+            one_source(args.overrides, args.seed, args.duration)
             sc = scenario.load(args.scenario, args.overrides, allow_outside=args.allow_outside)
             new = _claim(args.out, sc, args.seed, args.duration, f"sumo_{args.junction}", args.force)
             with refused(args.out, new):
@@ -481,10 +482,11 @@ def _main(argv: list[str] | None) -> int:
 def _cmd_run(args) -> int:
     from nrtraffic import scenario
     from runners.api import OutputError, slug
-    from runners.api import refused
     from runners.api import claim as _claim
+    from runners.api import one_source, refused
     from runners.single import run_scenario
 
+    one_source(args.overrides, args.seed, args.duration)
     sc = scenario.load(args.scenario, args.overrides, allow_outside=args.allow_outside)
     seed = sc.general.seed if args.seed is None else args.seed
     out = args.out or Path("runs") / f"{slug(sc.general.name)}-seed{seed}"

@@ -34,6 +34,9 @@ def main(args) -> int:
             raise OutputError(f"--out {out} already holds {', '.join(ours)}: choose another folder, or --force to "
                               "replace them (nothing else in it is touched)")
         writable_dir(out)
+        for n in OUTPUTS:  # (a link of that name is replaced, never written through to where it points)
+            if (Path(out) / n).is_symlink():
+                (Path(out) / n).unlink()
         paths = write(c, out)
     except (CompareError, OutputError) as exc:
         print(f"nrtraffic: {exc}", file=sys.stderr)

@@ -1243,6 +1243,12 @@ def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]
         raise SweepError(f"the sweep has {n} runs, more than {MAX_RUNS}: narrow --seeds or --grid, or --force to "
                          "run them all")
     check_grid(grid, duration_s)
+    from runners.api import one_source
+
+    try:
+        one_source(overrides, None, duration_s)
+    except ValueError as exc:
+        raise SweepError(str(exc)) from None
     given = {o.split("=", 1)[0].strip() for o in overrides}
     both = sorted(given & {k for k, _ in grid}) or sorted(given & {"scenario.seed", "general.seed"})
     if both:  # (the grid's value, or the run's seed, would override it without a word)

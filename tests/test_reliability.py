@@ -965,6 +965,7 @@ def test_a_sweep_stopped_while_it_writes_its_tables_resumes(tmp_path, monkeypatc
     # a --set that the grid or --seeds would override without a word
     (["--grid", "demand.rate_veh_h=100,200", "--set", "demand.rate_veh_h=300"], "--grid sets it at every point"),
     (["--set", "scenario.seed=5"], "a sweep's seeds are --seeds"),
+    (["--set", "scenario.duration_s=10"], "--duration and --set scenario.duration_s both give it"),
     # two values whose folder names are one: the second had failed as "another configuration"
     (["--grid", 'scenario.description="a/b","a_b"', "--set", "outputs.warmup_s=0"], "have one folder name"),
     # a bad value at one grid point: the message says which point
@@ -1395,3 +1396,46 @@ def test_gui_delay_without_gui_is_refused(tmp_path, capsys):
     assert main(["run", str(CROSS4), "--duration", "5", "--gui-delay", "50", "--out", str(tmp_path / "o"),
                  "--no-progress"]) == 2
     assert "--gui-delay sets the delay of --gui" in capsys.readouterr().err and not (tmp_path / "o").exists()
+
+
+def test_a_flag_and_a_set_of_the_same_setting_are_refused(tmp_path, capsys):
+    """``--seed`` with ``--set scenario.seed``, ``--duration`` with ``--set scenario.duration_s``:
+    the flag won and the setting was dropped without a word; now exit 2, for a run, a baseline and
+    the Python API."""
+    import nrtraffic
+    from nrtraffic.scenario import ScenarioError
+
+    for cmd in (["run", str(CROSS4)], ["baseline", str(CROSS4), "--junction", "priority"]):
+        for flags, named in ((["--seed", "3", "--set", "scenario.seed=4"], "--seed and --set scenario.seed"),
+                             (["--duration", "5", "--set", "scenario.duration_s=10"],
+                              "--duration and --set scenario.duration_s")):
+            assert main([*cmd, *flags, "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+            assert named in capsys.readouterr().err and not (tmp_path / "o").exists()
+    with pytest.raises(ScenarioError, match="--seed and --set scenario.seed both give it"):
+        nrtraffic.run(CROSS4, seed=3, overrides={"scenario.seed": 4}, out=tmp_path / "a")
+    with pytest.raises(ScenarioError, match="allow_outside='no': give True or False"):
+        nrtraffic.run(CROSS4, duration_s=5, allow_outside="no", out=tmp_path / "b")
+    with pytest.raises(ScenarioError, match="report='no': give True or False"):
+        nrtraffic.run(CROSS4, duration_s=5, report="no", out=tmp_path / "c")
+    from runners.sweep import SweepError
+
+    with pytest.raises(SweepError, match="give the seeds"):  # (bytes had been read as seed 49)
+        nrtraffic.sweep(CROSS4, b"1", duration_s=5, out=tmp_path / "d")
+    assert not any(tmp_path.iterdir())
+
+
+def test_compare_replaces_a_link_in_its_out_instead_of_writing_through_it(tmp_path):
+    """A link named as one of compare's files in ``--out`` (``--force``) had the comparison written
+    to the file it points at, outside ``--out``; the link itself is replaced now."""
+    import shutil
+
+    golden = ROOT / "tests" / "golden" / "cross4"
+    other = tmp_path / "other"
+    shutil.copytree(golden, other)
+    (tmp_path / "precious.csv").write_text("mine\n")
+    out = tmp_path / "cmp"
+    out.mkdir()
+    (out / "compare_runs.csv").symlink_to(tmp_path / "precious.csv")
+    assert main(["compare", str(golden), str(other), "--out", str(out), "--force"]) == 0
+    assert (tmp_path / "precious.csv").read_text() == "mine\n"
+    assert not (out / "compare_runs.csv").is_symlink() and (out / "compare_runs.csv").stat().st_size > 5
