@@ -131,10 +131,35 @@ def load(run_dirs: list[Path]) -> list[Run]:
     for label, d, s in zip(_labels(summaries, dirs), dirs, summaries):
         try:
             mv = pd.read_csv(d / "movements.csv")
+            _check_movements(d, mv)
             runs.append(Run(label, d, s, mv, approach_figures(d, s)))
+        except CompareError:
+            raise
         except (OSError, ValueError, KeyError) as exc:  # (pandas' EmptyDataError and ParserError are ValueErrors)
             raise CompareError(f"{d}: its tables cannot be read ({type(exc).__name__}: {exc}); run it again") from None
     return runs
+
+
+# movements.csv's columns of numbers (a run writes them; an edited file may not)
+MOVEMENT_NUMBERS = ("vehicles", "throughput_veh_h", "mean_delay_s", "p95_delay_s", "stops_per_vehicle",
+                    "fuel_ml_per_vehicle")
+
+
+def _check_movements(d: Path, mv: pd.DataFrame) -> None:
+    """A run's ``movements.csv`` as a run writes it (CompareError naming what is wrong, exit 2): a
+    row per movement once, numbers where numbers go, a throughput for each."""
+    keys = [k for k in ("junction", "approach", "movement") if k in mv.columns]
+    twice = mv.duplicated(keys)
+    if twice.any() or mv[keys].isna().any().any():
+        raise CompareError(f"{d}: its tables cannot be read (movements.csv: a movement given twice or without its "
+                           "name: edited or damaged); run it again")
+    for col in MOVEMENT_NUMBERS:
+        if col in mv.columns and not pd.api.types.is_numeric_dtype(mv[col]):
+            raise CompareError(f"{d}: its tables cannot be read (movements.csv: {col} holds text where a run writes "
+                               "numbers: edited or damaged); run it again")
+    if "throughput_veh_h" in mv.columns and mv["throughput_veh_h"].isna().any():
+        raise CompareError(f"{d}: its tables cannot be read (movements.csv: a movement without its throughput: "
+                           "edited or damaged); run it again")
 
 
 def approach_figures(run_dir: Path, summary: dict) -> pd.DataFrame:

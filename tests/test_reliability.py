@@ -1439,3 +1439,30 @@ def test_compare_replaces_a_link_in_its_out_instead_of_writing_through_it(tmp_pa
     assert main(["compare", str(golden), str(other), "--out", str(out), "--force"]) == 0
     assert (tmp_path / "precious.csv").read_text() == "mine\n"
     assert not (out / "compare_runs.csv").is_symlink() and (out / "compare_runs.csv").stat().st_size > 5
+
+
+@pytest.mark.parametrize("edit, named", [("extra", "a movement given twice or without its name"),
+                                         ("twice", "a movement given twice or without its name"),
+                                         ("text", "throughput_veh_h holds text"),
+                                         ("blank", "a movement without its throughput")])
+def test_compare_refuses_a_movements_table_damaged_inside(edit, named, tmp_path, capsys):
+    """A movements.csv with its header intact but a row shifted by extra fields, a row repeated, text
+    or nothing where the throughput goes: compare had shown it as figures, exit 0."""
+    import shutil
+
+    golden = ROOT / "tests" / "golden" / "cross4"
+    run = tmp_path / "run"
+    shutil.copytree(golden, run)
+    lines = (run / "movements.csv").read_text().splitlines()
+    first = lines[1].split(",")
+    col = lines[0].split(",").index("throughput_veh_h")
+    if edit == "extra":
+        lines[1] += ",extra,cols"
+    elif edit == "twice":
+        lines.insert(1, lines[1])
+    else:
+        first[col] = "abc" if edit == "text" else ""
+        lines[1] = ",".join(first)
+    (run / "movements.csv").write_text("\n".join(lines) + "\n")
+    assert main(["compare", str(golden), str(run), "--out", str(tmp_path / "cmp")]) == 2
+    assert named in capsys.readouterr().err and not (tmp_path / "cmp").exists()
