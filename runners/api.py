@@ -309,12 +309,21 @@ def one_source(overrides, seed, duration_s) -> None:
     of its scenario key: the flag wins, and the setting would be dropped without a word."""
     from nrtraffic.scenario import ScenarioError
 
-    keys = {str(o).split("=", 1)[0].strip() for o in overrides}
+    given = {}
+    for o in overrides:
+        key, _, text = str(o).partition("=")
+        given[key.strip()] = text.strip()
     for value, flag, names in ((seed, "--seed", ("scenario.seed", "general.seed")),
                                (duration_s, "--duration", ("scenario.duration_s", "general.duration_s"))):
-        both = keys & set(names)
-        if value is not None and both:
-            raise ScenarioError(f"{flag} and --set {sorted(both)[0]} both give it: give one of them")
+        for name in names:
+            if value is None or name not in given:
+                continue
+            try:
+                same = float(given[name]) == float(value)
+            except ValueError:
+                same = False
+            if not same:
+                raise ScenarioError(f"{flag} {value} and --set {name}={given[name]} both give it: give one of them")
 
 
 def _flag(value, name: str) -> bool:

@@ -965,7 +965,7 @@ def test_a_sweep_stopped_while_it_writes_its_tables_resumes(tmp_path, monkeypatc
     # a --set that the grid or --seeds would override without a word
     (["--grid", "demand.rate_veh_h=100,200", "--set", "demand.rate_veh_h=300"], "--grid sets it at every point"),
     (["--set", "scenario.seed=5"], "a sweep's seeds are --seeds"),
-    (["--set", "scenario.duration_s=10"], "--duration and --set scenario.duration_s both give it"),
+    (["--set", "scenario.duration_s=10"], "--duration 5.0 and --set scenario.duration_s=10 both give it"),
     # two values whose folder names are one: the second had failed as "another configuration"
     (["--grid", 'scenario.description="a/b","a_b"', "--set", "outputs.warmup_s=0"], "have one folder name"),
     # a bad value at one grid point: the message says which point
@@ -1399,19 +1399,19 @@ def test_gui_delay_without_gui_is_refused(tmp_path, capsys):
 
 
 def test_a_flag_and_a_set_of_the_same_setting_are_refused(tmp_path, capsys):
-    """``--seed`` with ``--set scenario.seed``, ``--duration`` with ``--set scenario.duration_s``:
-    the flag won and the setting was dropped without a word; now exit 2, for a run, a baseline and
-    the Python API."""
+    """``--seed`` with another ``--set scenario.seed``, ``--duration`` with another ``--set
+    scenario.duration_s``: the flag won and the setting was dropped without a word; now exit 2, for
+    a run, a baseline and the Python API (the same value in both is taken)."""
     import nrtraffic
     from nrtraffic.scenario import ScenarioError
 
     for cmd in (["run", str(CROSS4)], ["baseline", str(CROSS4), "--junction", "priority"]):
-        for flags, named in ((["--seed", "3", "--set", "scenario.seed=4"], "--seed and --set scenario.seed"),
+        for flags, named in ((["--seed", "3", "--set", "scenario.seed=4"], "--seed 3 and --set scenario.seed=4"),
                              (["--duration", "5", "--set", "scenario.duration_s=10"],
-                              "--duration and --set scenario.duration_s")):
+                              "--duration 5.0 and --set scenario.duration_s=10")):
             assert main([*cmd, *flags, "--out", str(tmp_path / "o"), "--no-progress"]) == 2
             assert named in capsys.readouterr().err and not (tmp_path / "o").exists()
-    with pytest.raises(ScenarioError, match="--seed and --set scenario.seed both give it"):
+    with pytest.raises(ScenarioError, match="--seed 3 and --set scenario.seed=4 both give it"):
         nrtraffic.run(CROSS4, seed=3, overrides={"scenario.seed": 4}, out=tmp_path / "a")
     with pytest.raises(ScenarioError, match="allow_outside='no': give True or False"):
         nrtraffic.run(CROSS4, duration_s=5, allow_outside="no", out=tmp_path / "b")
