@@ -64,6 +64,25 @@ def writable_dir(path: Path) -> None:
         raise OutputError(f"--out {path}: cannot write there: {exc.strerror or exc}") from None
 
 
+def writable_file(text: str) -> Path:
+    """``--write FILE`` checked before the work that it is to hold (:class:`~runners.api.OutputError`,
+    exit 2): a file's name, not a folder's (nor one ending in a slash), in a folder that exists."""
+    path = Path(text)
+    if not text.strip() or text.endswith(("/", os.sep)) or path.is_dir():
+        raise OutputError(f"--write {text}: is a folder; name a file in it")
+    if not path.absolute().parent.is_dir():
+        raise OutputError(f"--write {text}: its folder does not exist")
+    return path
+
+
+def write_file(path: Path, text: str) -> None:
+    """Write ``--write FILE`` (checked by :func:`writable_file`), or OutputError (exit 2)."""
+    try:
+        path.write_text(text)
+    except OSError as exc:
+        raise OutputError(f"--write {path}: cannot write there: {exc.strerror or exc}") from None
+
+
 SUMO_PATH_CHARS = ",:'\""  # SUMO reads a comma in a file name as a list separator, "host:port" as a socket; quotes fail
 
 

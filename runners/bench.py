@@ -401,7 +401,7 @@ def main(args) -> int:
     """``nrtraffic bench``: the table is written to ``--write`` (checked first), or by default to
     the committed ``bench/results.md`` (``bench/scale.md``), except for a ``--quick`` smoke test,
     which only prints its table where no ``--write`` is given."""
-    from runners.cli import writable_file, write_file
+    from runners.api import writable_file, write_file
 
     default = None if args.quick else ("bench/scale.md" if args.scale else "bench/results.md")
     write = writable_file(args.write) if args.write else (Path(default) if default else None)

@@ -9,7 +9,6 @@ kernels fresh) and the Python API's helpers are imported when first used.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from pathlib import Path
 
@@ -308,28 +307,6 @@ def _add_schema(sub) -> None:
     p.add_argument("--write", type=str, default=None, metavar="FILE", help="write to FILE instead of printing")
 
 
-def writable_file(text: str) -> Path:
-    """``--write FILE`` checked before the work that it is to hold (:class:`~runners.api.OutputError`,
-    exit 2): a file's name, not a folder's (nor one ending in a slash), in a folder that exists."""
-    from runners.api import OutputError
-
-    path = Path(text)
-    if not text.strip() or text.endswith(("/", os.sep)) or path.is_dir():
-        raise OutputError(f"--write {text}: is a folder; name a file in it")
-    if not path.absolute().parent.is_dir():
-        raise OutputError(f"--write {text}: its folder does not exist")
-    return path
-
-
-def write_file(path: Path, text: str) -> None:
-    from runners.api import OutputError
-
-    try:
-        path.write_text(text)
-    except OSError as exc:
-        raise OutputError(f"--write {path}: cannot write there: {exc.strerror or exc}") from None
-
-
 def _folder(text: str) -> Path:
     """An ``--out`` folder as given: an empty one (``--out ""``, an unset shell variable) would be
     the working folder, which nobody means."""
@@ -452,6 +429,8 @@ def _main(argv: list[str] | None) -> int:
             if args.write is None:
                 print(text, end="")
             else:
+                from runners.api import writable_file, write_file
+
                 write_file(writable_file(args.write), text)
             return 0
     except (ScenarioError, NetworkError) as exc:

@@ -45,14 +45,18 @@ CBF_FILES = ("fig5_speeds.png", "fig6_distance.png", "fig7_lateral_deviation.png
              "paper_results.json")
 
 
-def _run(sc, run_dir: Path, seed, progress: bool) -> dict:
-    """One run of an experiment into ``run_dir``, whose earlier run (:func:`claim_out` checked
-    that it holds nothing else) goes first; its summary."""
+def _run_all(path: Path, runs: dict, seed, progress: bool) -> tuple[dict, dict, dict]:
+    """Every run of an experiment (``runs``: :func:`_curved_runs`, :func:`_cbf_runs`), each into
+    its run directory, whose earlier run (:func:`claim_out` checked that it holds nothing else)
+    goes first; their summaries by table: the variants, the Euler predictor's, the horizon sweep."""
     from runners.single import remove_run_files
 
-    if run_dir.is_dir():
-        remove_run_files(run_dir)
-    return run_scenario(sc, run_dir, seed=seed, progress=progress).summary
+    done = {"variants": {}, "euler": {}, "horizon": {}}
+    for (table, key), (overrides, run_dir) in runs.items():
+        if run_dir.is_dir():
+            remove_run_files(run_dir)
+        done[table][key] = run_scenario(scenario.load(path, overrides), run_dir, seed=seed, progress=progress).summary
+    return done["variants"], done["euler"], done["horizon"]
 
 
 def _layout(out: Path, experiment: str) -> tuple[set[str], list[Path]]:
@@ -115,10 +119,7 @@ def run_curved(out: Path, seed: int | None = None, progress: bool = True) -> dic
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     path = SCENARIOS / "paper_curved" / "scenario.toml"
-    done = {"variants": {}, "euler": {}, "horizon": {}}
-    for (table, key), (overrides, run_dir) in _curved_runs(out).items():
-        done[table][key] = _run(scenario.load(path, overrides), run_dir, seed, progress)
-    results, euler, sweep = done["variants"], done["euler"], done["horizon"]
+    results, euler, sweep = _run_all(path, _curved_runs(out), seed, progress)
     base = scenario.load(path)
     # figures of the main run
     main = out / "curved"
@@ -259,10 +260,7 @@ def run_cbf(out: Path, seed: int | None = None, progress: bool = True) -> dict:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     path = SCENARIOS / "paper_cbf" / "scenario.toml"
-    done = {"variants": {}, "euler": {}, "horizon": {}}
-    for (table, key), (overrides, run_dir) in _cbf_runs(out).items():
-        done[table][key] = _run(scenario.load(path, overrides), run_dir, seed, progress)
-    results, euler, sweep = done["variants"], done["euler"], done["horizon"]
+    results, euler, sweep = _run_all(path, _cbf_runs(out), seed, progress)
     base = scenario.load(path)
     d0 = base.barriers.min_gap_m + base.vehicle.params().length
     tr = {k: _paper_time(read_trajectories(out / k)) for k in CBF_VARIANTS}

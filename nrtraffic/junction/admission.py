@@ -95,8 +95,8 @@ class Admission:
         if rec.controlled:
             st.life.move(vid, State.APPROACHING)
             st.sumo.colour(vid, "approaching")
-            if st.sumo.speed(vid) >= MIN_CRUISE_MPS:  # (cruising to its zone; one inserted standing sets off)
-                st.sumo.hold_speed(vid, st.sumo.speed(vid))
+            if (v0 := st.sumo.speed(vid)) >= MIN_CRUISE_MPS:  # (cruising to its zone; one inserted standing sets off)
+                st.sumo.hold_speed(vid, v0)
         else:
             st.life.move(vid, State.SUMO)
             if rec.driver == "human" and st.control:

@@ -331,8 +331,8 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
         begin = _num(el, "begin", where, 0.0)
         if el.get("end") is not None and _num(el, "end", where) < begin:
             raise DemandFileError(f"{where}: end={el.get('end')} is before begin={el.get('begin')}")
-        end = min(_num(el, "end", where, FLOW_END_S), end_s)  # (SUMO's own end where it gives none)
-        if el.get("number") is None and _flow_size(el, end if math.isfinite(end) else None) > MAX_FLOW_VEHICLES:
+        end = min(_num(el, "end", where, FLOW_END_S), end_s)  # (SUMO's own end where it gives none: always finite)
+        if el.get("number") is None and _flow_size(el, end) > MAX_FLOW_VEHICLES:
             raise DemandFileError(f"{where}: makes more than the {MAX_FLOW_VEHICLES} vehicles one flow may have "
                                   "in the run: give it an end (or a number) that the study needs")
         times: list[float] = []
@@ -341,8 +341,6 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
             if n > MAX_FLOW_VEHICLES:
                 raise DemandFileError(f"{where}: number={n} is more than the {MAX_FLOW_VEHICLES} vehicles one flow may "
                                       "have")
-            if not math.isfinite(end):
-                raise DemandFileError(f"{where}: number needs a finite end")
             times = [begin + k * (end - begin) / n for k in range(n)] if n > 0 else []
         elif el.get("period", "").startswith("exp("):
             rate = _exp_rate(el, where)
@@ -362,12 +360,12 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
                 period = 3600.0 / vph
             if not period > 0:
                 raise DemandFileError(f"{where}: the period must be > 0")
-            times = list(np.arange(begin, end, period)) if math.isfinite(end) else []
+            times = list(np.arange(begin, end, period))
         elif el.get("probability") is not None:
             p = _num(el, "probability", where)
             if not 0 <= p <= 1:
                 raise DemandFileError(f"{where}: probability must be in [0, 1]")
-            steps = np.arange(begin, end, 1.0) if math.isfinite(end) else np.zeros(0)
+            steps = np.arange(begin, end, 1.0)
             times = list(steps[rng.random(len(steps)) < p])
         else:
             raise DemandFileError(f"{where}: needs period, vehsPerHour, probability or number")
