@@ -64,21 +64,38 @@ def writable_dir(path: Path) -> None:
         raise OutputError(f"--out {path}: cannot write there: {exc.strerror or exc}") from None
 
 
-def writable_file(text: str) -> Path:
+def writable_file(text: str, own: tuple[str, ...] = ()) -> Path:
     """``--write FILE`` checked before the work that it is to hold (:class:`~runners.api.OutputError`,
-    exit 2): a file's name, not a folder's (nor one ending in a slash), in a folder that exists."""
+    exit 2): a file's name, not a folder's (nor one ending in a slash), printable, in a folder that
+    exists, and either new or an earlier output of the same command (one that begins with one of
+    ``own``): a file of the user's is never written over."""
     path = Path(text)
     if not text.strip() or text.endswith(("/", os.sep)) or path.is_dir():
         raise OutputError(f"--write {text}: is a folder; name a file in it")
+    if not text.isprintable():
+        raise OutputError(f"--write {text!r}: the name holds a line break or another control character; choose "
+                          "another")
     if not path.absolute().parent.is_dir():
         raise OutputError(f"--write {text}: its folder does not exist")
+    if os.path.lexists(path):
+        try:
+            with open(path, "rb") as f:
+                head = f.read(200).decode("utf-8", "replace")
+        except OSError:
+            head = ""
+        if path.is_symlink() or not path.is_file() or not head.startswith(own or ("\0",)):
+            raise OutputError(f"--write {text}: exists and is not an earlier output of this command (a file of your "
+                              "own?); remove it, or choose another name")
     return path
 
 
 def write_file(path: Path, text: str) -> None:
-    """Write ``--write FILE`` (checked by :func:`writable_file`), or OutputError (exit 2)."""
+    """Write ``--write FILE`` (checked by :func:`writable_file`) whole or not at all, or
+    OutputError (exit 2)."""
+    from nrtraffic.results import write_atomic
+
     try:
-        path.write_text(text)
+        write_atomic(path, text.encode())
     except OSError as exc:
         raise OutputError(f"--write {path}: cannot write there: {exc.strerror or exc}") from None
 

@@ -173,6 +173,10 @@ def bench_memory(duration_s: float) -> dict:
 
 SCALE_SIDES = (1, 2, 4, 6)  # grids of 1, 4, 16 and 36 junctions
 SCALE_RATE_VEH_H = 200.0  # departures per hour at each road into a grid: the cars at once grow with it
+# the first line of each table nrtraffic bench writes (an earlier one may be written over)
+BENCH_TITLES = ("# nrtraffic benchmarks", "# nrtraffic scale benchmark")
+
+
 # the phases of the loop (WALL_PHASES without "qp", which is part of "admission")
 LOOP_PHASES = ("kernel", "sumo_step", "sumo_io", "admission", "leaders", "collision_check", "logging")
 
@@ -338,7 +342,7 @@ def run_all(quick: bool = False) -> str:
     mem = [bench_memory(d) for d in ((60.0, 120.0) if quick else (600.0, 3600.0))]
     rss = peak_rss_mib()
     lines = [
-        "# nrtraffic benchmarks",
+        BENCH_TITLES[0],
         "",
         f"`nrtraffic bench` on {platform.machine()}, {platform.python_implementation()} {platform.python_version()}, "
         f"one process, one core. Every figure of a table was measured back to back in one run; the machines are "
@@ -404,7 +408,7 @@ def main(args) -> int:
     from runners.api import writable_file, write_file
 
     default = None if args.quick else ("bench/scale.md" if args.scale else "bench/results.md")
-    write = writable_file(args.write) if args.write else (Path(default) if default else None)
+    write = writable_file(args.write, own=BENCH_TITLES) if args.write else (Path(default) if default else None)
     if args.scale:
         figure = write.with_suffix(".png") if write is not None else None
         if figure is not None and figure.exists() and not write.exists():  # (a figure of the user's, not a table's)
@@ -412,7 +416,7 @@ def main(args) -> int:
 
             raise OutputError(f"--write {write}: the scale benchmark's figure goes beside it as {figure}, which "
                               "exists and is no earlier benchmark's (no table beside it); choose another name")
-        table = "\n".join(["# nrtraffic scale benchmark", "", *scale_section(
+        table = "\n".join([BENCH_TITLES[1], "", *scale_section(
             120.0 if args.quick else 600.0, figure, district_hour=not args.quick)]) + "\n"
     else:
         table = run_all(quick=args.quick)

@@ -431,7 +431,7 @@ def _main(argv: list[str] | None) -> int:
             else:
                 from runners.api import writable_file, write_file
 
-                write_file(writable_file(args.write), text)
+                write_file(writable_file(args.write, own=('{\n "$schema"', "# Scenario file keys")), text)
             return 0
     except (ScenarioError, NetworkError) as exc:
         print(f"nrtraffic: scenario error: {exc}", file=sys.stderr)

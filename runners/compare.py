@@ -15,15 +15,14 @@ def main(args) -> int:
     directories cannot be compared or the output folder cannot be used."""
     from nrtraffic.compare import CompareError, compare, console, write
     from runners.api import OutputError, slug, writable_dir
-    from runners.single import in_a_sweep, read_manifest
+    from runners.single import in_a_run, in_a_sweep, read_manifest
 
     try:
         c = compare(args.run_dirs)
         out = args.out or Path("runs") / f"{slug(c.scenario)}-compare"
-        inside = next((q for q in (Path(out).resolve(), *Path(out).resolve().parents) if (q / "summary.json").is_file()
-                       and read_manifest(q) is not None), None)
+        inside = Path(out) if (Path(out) / "summary.json").is_file() and read_manifest(Path(out)) else in_a_run(out)
         if inside is not None:  # (its files would be taken for the run's own)
-            where = "a run directory" if inside == Path(out).resolve() else f"in the run directory {inside}"
+            where = "a run directory" if inside == Path(out) else f"in the run directory {inside}"
             raise OutputError(f"--out {out}: {where}; write the comparison into another folder")
         owner = in_a_sweep(Path(out))
         if owner is not None:  # (its files there would stop the sweep's resume, which keeps its folder its own)

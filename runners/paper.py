@@ -79,7 +79,7 @@ def claim_out(out: Path, experiment: str) -> None:
     output of the same command (its manifest lists what it wrote), with no file of the user's in its
     run directories. Its manifest then lists, before anything is written, what it will write."""
     from runners.api import OutputError, usable_path, writable_dir
-    from runners.single import MANIFEST, in_a_sweep, read_manifest
+    from runners.single import MANIFEST, in_a_run, in_a_sweep, read_manifest
     from runners.sweep import foreign_files, record_tables
 
     out = Path(out)
@@ -87,6 +87,9 @@ def claim_out(out: Path, experiment: str) -> None:
     owner = in_a_sweep(out)
     if owner is not None and (owner != out.absolute() or (out / "runs").exists()):
         raise OutputError(f"--out {out} lies in the sweep folder {owner}: choose a folder outside it")
+    inside = in_a_run(out)
+    if inside is not None:
+        raise OutputError(f"--out {out} lies in the run directory {inside}: choose a folder outside it")
     top, dirs = _layout(out, experiment)
     if out.is_dir():
         m = read_manifest(out, sweep=True)

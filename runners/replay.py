@@ -176,10 +176,9 @@ def compare_runs(recorded: Path, replayed: Path, rtol: float = RTOL, atol: float
         if m_rec.is_file() != m_new.is_file():
             diffs.append(Difference(name, "file", m_rec.is_file(), m_new.is_file()))
         elif m_rec.is_file():
-            try:
-                a, b = pd.read_csv(m_rec), pd.read_csv(m_new)
-            except (ValueError, pd.errors.EmptyDataError) as exc:  # (an emptied or garbled table)
-                diffs.append(Difference(name, "readable", False, f"{type(exc).__name__}: {exc}"))
+            (a, ea), (b, eb) = _read(pd.read_csv, m_rec), _read(pd.read_csv, m_new)
+            if ea or eb:  # (an emptied or garbled table: which one, and why)
+                diffs.append(Difference(name, "readable", ea or True, eb or True))
                 continue
             diffs += _compare_frames(name, a, b, [k for k in keys if k in a.columns or k in b.columns] or keys, rtol,
                                      atol, limit, rounded=True)
@@ -187,10 +186,9 @@ def compare_runs(recorded: Path, replayed: Path, rtol: float = RTOL, atol: float
     if r_rec.is_file() != r_new.is_file():
         diffs.append(Difference("sumo/routes.rou.xml", "file", r_rec.is_file(), r_new.is_file()))
     elif r_rec.is_file():  # (the demand SUMO was given: rebuilt from the configuration)
-        try:
-            d_rec, d_new = _departures(r_rec), _departures(r_new)
-        except ET.ParseError as exc:
-            diffs.append(Difference("sumo/routes.rou.xml", "readable", False, f"ParseError: {exc}"))
+        (d_rec, ea), (d_new, eb) = _read(_departures, r_rec), _read(_departures, r_new)
+        if ea or eb:
+            diffs.append(Difference("sumo/routes.rou.xml", "readable", ea or True, eb or True))
         else:
             diffs += _compare_frames("sumo/routes.rou.xml", d_rec, d_new, ["id"], rtol, atol, limit)
     sumo_outputs = (("tripinfo.xml", "tripinfo", ["id"]),
@@ -213,13 +211,21 @@ def compare_runs(recorded: Path, replayed: Path, rtol: float = RTOL, atol: float
     if m_rec.is_file() != m_new.is_file():
         diffs.append(Difference("movements.json", "file", m_rec.is_file(), m_new.is_file()))
     elif m_rec.is_file():  # (the junction's geometry as the run built it)
-        try:
-            a, b = json.loads(m_rec.read_text()), json.loads(m_new.read_text())
-        except ValueError as exc:
-            diffs.append(Difference("movements.json", "readable", False, f"{type(exc).__name__}: {exc}"))
+        (a, ea), (b, eb) = (_read(lambda p: json.loads(p.read_text()), p) for p in (m_rec, m_new))
+        if ea or eb:
+            diffs.append(Difference("movements.json", "readable", ea or True, eb or True))
         else:
             diffs += _compare_json("movements.json", "", a, b, rtol, atol)[:limit]
     return diffs
+
+
+def _read(read, path: Path):
+    """``(read(path), None)``, or ``(None, "not readable: <why>")`` for a file that is emptied or
+    garbled, so that a difference says which of the two it was."""
+    try:
+        return read(path), None
+    except (ValueError, ET.ParseError, pd.errors.EmptyDataError) as exc:
+        return None, f"not readable: {type(exc).__name__}: {exc}"
 
 
 def _compare_json(where: str, path: str, a, b, rtol: float, atol: float) -> list[Difference]:
@@ -328,8 +334,10 @@ def replay(run_dir: Path, out: Path | None = None, rtol: float = RTOL, atol: flo
         from runners.single import claim_run_dir
 
         a, b = Path(out).resolve(), run_dir.resolve()
-        linked = next((f for f in run_dir.rglob("*") if f.resolve().is_relative_to(a)), None)
-        if a == b or a.is_relative_to(b) or b.is_relative_to(a) or linked is not None:
+        same = a == b or a.is_relative_to(b) or b.is_relative_to(a)
+        linked = None if same else next((f for f in run_dir.rglob("*") if f.is_symlink()
+                                         and f.resolve().is_relative_to(a)), None)
+        if same or linked is not None:
             raise ReplayError(f"--out {out} would overwrite the run it verifies ({run_dir}"
                               f"{f', whose {linked.name} is a link into it' if linked is not None else ''}): give "
                               "another folder")

@@ -282,6 +282,10 @@ def claim_run_dir(out: Path, sc: scenario_mod.Scenario, seed: int | None, durati
     if owner is not None:
         raise ValueError(f"--out {out} lies in the sweep folder {owner}: its run folders are the sweep's own (its "
                          "tables and resumes read them); choose a folder outside it")
+    inside = in_a_run(out)
+    if inside is not None:
+        raise ValueError(f"--out {out} lies in the run directory {inside}: its files would be taken for that run's "
+                         "(and a --force on it would remove them); choose a folder outside it")
     if not out.is_dir() or not any(out.iterdir()):
         return
     same = False
@@ -323,6 +327,19 @@ def in_a_sweep(path: Path) -> Path | None:
                 return q
             if (q / FINGERPRINT).is_file():
                 return next((r.parent for r in q.parents if r.name == "runs"), q)
+    return None
+
+
+def in_a_run(path: Path) -> Path | None:
+    """The run directory (a ``summary.json`` beside a run's manifest, or beside the
+    ``scenario.resolved.toml`` of a run of an earlier version) that ``path`` lies in, below it (as
+    given, or through its links); None. Whatever is written there would be taken for that run's
+    files, and a ``--force`` on it would remove them."""
+    for p in dict.fromkeys((Path(path).absolute(), Path(path).resolve())):
+        for q in p.parents:
+            if (q / "summary.json").is_file() and (read_manifest(q) is not None
+                                                   or (q / "scenario.resolved.toml").is_file()):
+                return q
     return None
 
 

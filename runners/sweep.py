@@ -1149,7 +1149,7 @@ def check_out(out: Path) -> None:
     sweep recorded in its manifest as written (:func:`record_tables`), so that a sweep's tables and
     report never replace a user's files of the same name."""
     from runners.api import OutputError, usable_path
-    from runners.single import MANIFEST, in_a_sweep, read_manifest
+    from runners.single import MANIFEST, in_a_run, in_a_sweep, read_manifest
 
     try:
         usable_path(out)
@@ -1158,8 +1158,15 @@ def check_out(out: Path) -> None:
     owner = in_a_sweep(out.absolute().parent)
     if owner is not None:
         raise SweepError(f"--out {out} lies in the sweep folder {owner}: choose a folder outside it")
+    inside = in_a_run(out)
+    if inside is not None:
+        raise SweepError(f"--out {out} lies in the run directory {inside}: choose a folder outside it")
     if not out.is_dir():
         return
+    linked = next((p for f in SWEEP_FOLDERS for p in (out / f, *_walk(out / f)) if p.is_symlink()), None)
+    if linked is not None:  # (its runs would be written, and replaced, where it points)
+        raise SweepError(f"--out {out}: {linked} is a link (to {os.readlink(linked)}); a sweep writes and replaces its "
+                         "runs only inside its own folder: remove the link, or choose another folder")
     m = read_manifest(out, sweep=True)
     own = set(m["created"]) | {MANIFEST} if m is not None else set()
     foreign = sorted(p.name for p in out.iterdir() if p.name not in own and p.name not in SWEEP_FOLDERS)
@@ -1179,6 +1186,11 @@ def check_out(out: Path) -> None:
                          f"the tables of a sweep of an earlier version, which kept no {MANIFEST}): a sweep would "
                          "write its tables over them; move them out of the folder and run again to resume its runs/, "
                          "or choose another folder")
+
+
+def _walk(folder: Path):
+    """Everything under ``folder``, not through links (none where it is not a folder)."""
+    return folder.rglob("*") if folder.is_dir() and not folder.is_symlink() else ()
 
 
 def make_out(out: Path) -> bool:

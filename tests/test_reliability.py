@@ -2,6 +2,7 @@
 clear failure, and every bad flag or file is refused with exit 2 and a message naming it."""
 
 import json
+import shutil
 import signal
 import subprocess
 import sys
@@ -1159,6 +1160,51 @@ def test_force_does_not_write_over_files_no_earlier_run_created(tmp_path, capsys
             assert (o / "vehicles.csv").read_text() == "mine\n"
 
 
+def test_a_sweep_writes_nothing_through_a_link_in_its_folder(tmp_path, capsys):
+    """A sweep folder whose ``runs/``, or one of whose run folders, is a link elsewhere is refused
+    (exit 2, naming the link) before anything is written: its runs had gone where the link points,
+    and a linked run folder failed with a traceback (rmtree on a link), leaving temporary folders."""
+    flags = ["--seeds", "1", "--duration", "5", "--set", "outputs.warmup_s=0", "--no-progress", "--workers", "1"]
+    out = tmp_path / "study"
+    assert main(["sweep", str(CROSS4), "--out", str(out), *flags]) == 0
+    run = next((out / "runs").glob("*/seed1/nrtraffic"))
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (elsewhere / "mine.txt").write_text("mine")
+    link_run = run.parent / "sumo_priority"
+    link_run.symlink_to(elsewhere, target_is_directory=True)
+    capsys.readouterr()
+    assert main(["sweep", str(CROSS4), "--out", str(out), *flags, "--baseline", "priority"]) == 2
+    assert f"{link_run} is a link" in capsys.readouterr().err
+    link_run.unlink()
+    linked = tmp_path / "linked"
+    linked.mkdir()
+    (linked / "runs").symlink_to(elsewhere, target_is_directory=True)
+    assert main(["sweep", str(CROSS4), "--out", str(linked), *flags]) == 2
+    assert "runs is a link" in capsys.readouterr().err
+    assert sorted(p.name for p in elsewhere.iterdir()) == ["mine.txt"]
+    assert sorted(p.name for p in linked.iterdir()) == ["runs"]
+
+
+def test_nothing_is_written_into_another_runs_folder(tmp_path, capsys):
+    """``--out`` inside a finished run's folder (its files would be taken for that run's, and a
+    ``--force`` there would remove them) is refused with exit 2 by run, baseline, replay and sweep,
+    as compare refuses it; nothing is made there."""
+    run = tmp_path / "run"
+    shutil.copytree(ROOT / "tests" / "golden" / "cross4", run)
+    before = sorted(p.relative_to(run) for p in run.rglob("*"))
+    short = ["--duration", "5", "--set", "outputs.warmup_s=0", "--no-progress"]
+    for argv in (["run", str(CROSS4), "--out", str(run / "inner"), *short],
+                 ["baseline", str(CROSS4), "--junction", "priority", "--out", str(run / "sumo" / "b"), *short],
+                 ["replay", str(run), "--out", str(tmp_path / "x" / ".." / "run" / "r"), "--no-progress"],
+                 ["sweep", str(CROSS4), "--seeds", "1", "--out", str(run / "s"), *short]):
+        capsys.readouterr()
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert "lies in the run directory" in err or "would overwrite the run it verifies" in err, (argv, err)
+    assert sorted(p.relative_to(run) for p in run.rglob("*")) == before
+
+
 def test_force_keeps_a_users_file_named_like_one_the_run_did_not_write(tmp_path, capsys):
     """A finished run without fcd.xml or arterial.png lists only what it wrote: a file of the user's
     put into its folder later under one of those names is not taken for the run's. ``--force``
@@ -1294,6 +1340,27 @@ def test_bench_write_is_checked_before_the_benchmark_runs(tmp_path, capsys):
             assert main([*cmd, "--write", where]) == 2
             assert f"--write {where}" in capsys.readouterr().err
     assert not any(tmp_path.iterdir())
+
+
+def test_write_never_replaces_a_users_file(tmp_path, capsys):
+    """``bench --write`` and ``schema --write`` over a file that is not an earlier output of the
+    same command (a file of the user's), or through a link, or to a name with a line break: exit 2
+    before any work, the file untouched (bench had overwritten it). An earlier output is replaced."""
+    mine = tmp_path / "notes.md"
+    mine.write_text("my notes\n")
+    link = tmp_path / "link.md"
+    link.symlink_to(mine)
+    for where in (mine, link):
+        for cmd in (["bench", "--quick"], ["schema"], ["schema", "--markdown"]):
+            assert main([*cmd, "--write", str(where)]) == 2
+            assert "is not an earlier output of this command" in capsys.readouterr().err
+    assert main(["bench", "--quick", "--write", f"{tmp_path}/a\nb.md"]) == 2
+    assert "line break" in capsys.readouterr().err
+    assert mine.read_text() == "my notes\n" and sorted(p.name for p in tmp_path.iterdir()) == ["link.md", "notes.md"]
+    for flags in ([], ["--markdown"]):  # (its own earlier output is written again)
+        out = tmp_path / f"schema{len(flags)}"
+        assert main(["schema", *flags, "--write", str(out)]) == 0
+        assert main(["schema", *flags, "--write", str(out)]) == 0
 
 
 def test_robustness_checks_its_workers_and_refuses_another_sweeps_folder(tmp_path, capsys):

@@ -2,6 +2,7 @@
 
 import json
 import shutil
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -104,9 +105,10 @@ def test_replay_never_writes_into_the_run_it_verifies_nor_over_another_run(tmp_p
     v.loc[0, "energy_u2"] = v.loc[0, "energy_u2"] * 1.01 + 0.01
     v.to_csv(run / "vehicles.csv", index=False)
     edited = (run / "vehicles.csv").read_bytes()
-    for out in (run, run / "inner", tmp_path):
+    for out in (run, run / "inner", tmp_path, Path(f"{run}/../{run.name}")):
         assert main(["replay", str(run), "--out", str(out), "--no-progress"]) == 2
-        assert "would overwrite the run it verifies" in capsys.readouterr().err
+        err = capsys.readouterr().err
+        assert "would overwrite the run it verifies" in err and "link" not in err  # (none is a link)
     assert (run / "vehicles.csv").read_bytes() == edited and not (run / "inner").exists()
     other = tmp_path / "other"
     shutil.copytree(GOLDEN, other)
@@ -117,6 +119,20 @@ def test_replay_never_writes_into_the_run_it_verifies_nor_over_another_run(tmp_p
     assert main(["replay", str(run), "--out", str(kept), "--no-progress"]) == 1  # the edit differs
     assert "difference(s) beyond" in capsys.readouterr().out
     assert (kept / "summary.json").is_file()
+
+
+@pytest.mark.parametrize("name", ["movements.csv", "movements.json", "sumo/routes.rou.xml"])
+def test_an_emptied_file_is_named_on_the_side_it_was_emptied(name, tmp_path):
+    """A table emptied in the recording (or in the replay) is "not readable" on that side and
+    readable on the other: the difference had put the reader's error on the replayed side."""
+    for side in ("recorded", "replayed"):
+        edited = tmp_path / side
+        shutil.copytree(GOLDEN, edited)
+        (edited / name).write_text("")
+        rec, new = (edited, GOLDEN) if side == "recorded" else (GOLDEN, edited)
+        d = next(d for d in compare_runs(rec, new) if d.where == name)
+        bad, good = (d.recorded, d.replayed) if side == "recorded" else (d.replayed, d.recorded)
+        assert d.what == "readable" and good is True and str(bad).startswith("not readable"), str(d)
 
 
 def test_a_stopped_run_is_not_replayed(tmp_path, capsys):
