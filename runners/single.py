@@ -48,7 +48,9 @@ def check_demand(sc: scenario_mod.Scenario, seed: int | None, duration_s: float 
             d = sc.demand
             where = (f"demand.sumo_routes has no departure from scenario.begin_s = {sc.general.begin_s:g} s on"
                      if d.sumo_routes else
-                     f"demand.begin_s = {d.begin_s:g} s, demand.end_s = {d.end_s:g} s, its rates and counts give none")
+                     (f"from demand.begin_s = {d.begin_s:g} s to "
+                     + (f"demand.end_s = {d.end_s:g} s" if d.end_s else f"the run's end at {d_run:g} s")
+                     + f", its rates and counts give none{f' with seed {seed}' if seed is not None else ''}"))
             if d.sumo_routes and d.scale != 1.0:
                 where += f" once demand.scale = {d.scale:g} has scaled it"
             if departures:

@@ -233,7 +233,12 @@ def plan(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]]
         try:
             sc = scenario.load(scenario_path, list(ov), allow_outside=allow_outside)
             check(sc)
-            check_demand(sc, seeds[0], duration_s)  # (the demand's errors do not depend on the seed)
+            check_demand(sc, seeds[0], duration_s)
+            for seed in seeds[1:]:  # (random arrivals of another seed may give no vehicle, or a speed too high)
+                try:
+                    check_demand(sc, seed, duration_s)
+                except scenario.ScenarioError as exc:
+                    raise scenario.ScenarioError(str(exc) if f"seed {seed}" in str(exc) else f"seed {seed}: {exc}") from None
         except (scenario.ScenarioError, NetworkError) as exc:
             if not point:
                 raise

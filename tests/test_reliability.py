@@ -1160,6 +1160,17 @@ def test_force_does_not_write_over_files_no_earlier_run_created(tmp_path, capsys
             assert (o / "vehicles.csv").read_text() == "mine\n"
 
 
+def test_a_sweep_checks_the_demand_of_every_seed(tmp_path, capsys):
+    """A seed whose random arrivals give the run no vehicle is refused (exit 2, naming the seed)
+    before any run starts, as the first seed is: it had run with status "ok" and nothing done.
+    (cross4 over 3 s: seeds 2, 3 and 4 give one departure each, seed 5 none.)"""
+    out = tmp_path / "s"
+    assert main(["sweep", str(CROSS4), "--seeds", "2:5", "--duration", "3", "--set", "outputs.warmup_s=0", "--out",
+                 str(out), "--no-progress", "--workers", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "gives the run no vehicle" in err and "with seed 5" in err and not out.exists()
+
+
 def test_a_sweep_writes_nothing_through_a_link_in_its_folder(tmp_path, capsys):
     """A sweep folder whose ``runs/``, or one of whose run folders, is a link elsewhere is refused
     (exit 2, naming the link) before anything is written: its runs had gone where the link points,
