@@ -95,15 +95,21 @@ def check_window(sc: scenario_mod.Scenario, duration_s: float | None) -> None:
 
 def _check_depart_speeds(sc: scenario_mod.Scenario, demand, departures) -> None:
     """No departure faster than the speed limit of its first edge, which SUMO refuses once it
-    runs ("Departure speed ... too high for the departure edge"), and no ``[[vehicles]]`` placed
-    beyond its end (SUMO moved it to the end without a word)."""
+    runs ("Departure speed ... too high for the departure edge"), nor faster than its type can stop
+    from before a link where it must give way (SUMO discards it: "will not be able to depart"), and
+    no ``[[vehicles]]`` placed beyond its end (SUMO moved it to the end without a word)."""
     from nrtraffic.sumo.network import read_net
 
     net = read_net(sc.network_path)
     limit: dict[str, float] = {}
     listed = {v.id for v in sc.vehicles}
     firsts: dict[str, str] = {}  # route -> its first edge (a route is shared by many vehicles)
-    for vid, route, _, speed, pos, *_ in departures:
+    from nrtraffic.sumo.adapter import VehicleType
+
+    stops: dict[tuple, tuple[float, str] | None] = {}
+    dt = sc.sumo.step_length_s
+    length = sc.vehicle.params().length
+    for vid, route, _, speed, pos, kind, *_ in departures:
         first = firsts.get(route) or firsts.setdefault(route, demand.route_edges(route)[0])
         if first not in limit:
             limit[first] = net.getEdge(first).getSpeed() if net.hasEdge(first) else float("inf")
@@ -111,12 +117,47 @@ def _check_depart_speeds(sc: scenario_mod.Scenario, demand, departures) -> None:
             raise scenario_mod.ScenarioError(
                 f"vehicles.{vid}.depart_pos_m = {pos:g} m lies beyond its first edge {first} "
                 f"({net.getEdge(first).getLength():.1f} m long): give a position on it")
+        where = (f"vehicles.{vid}.depart_speed_mps" if vid in listed else
+                 "its departSpeed in demand.sumo_routes" if sc.demand.sumo_routes else "demand.entry_speed_mps")
         if speed > limit[first] + 1e-9:
-            where = (f"vehicles.{vid}.depart_speed_mps" if vid in listed else
-                     "its departSpeed in demand.sumo_routes" if sc.demand.sumo_routes else "demand.entry_speed_mps")
             raise scenario_mod.ScenarioError(
                 f"vehicle {vid} departs at {speed:g} m/s on edge {first}, whose speed limit is {limit[first]:g} m/s "
                 f"(SUMO refuses it): lower {where}")
+        human = kind == "human"
+        decel = sc.human.decel_mps2 if human else VehicleType.decel_mps2
+        key = (route, pos, speed, human)
+        if key not in stops:
+            stops[key] = _stop_room(net, demand.route_edges(route), pos if pos >= 0 else length)
+        room = stops[key]
+        if room is not None and speed * speed + 2 * speed * decel * dt > 2 * decel * room[0] + 1e-9:
+            # (SUMO's insertion check: the driver must be able to stop, braking at its decel from the
+            # next step on, before a link where it has no priority; else SUMO discards the vehicle)
+            need = speed * speed / (2 * (room[0] - speed * dt)) if room[0] > speed * dt else float("inf")
+            fix = (f"raise human.decel_mps2 (a driver's comfortable deceleration) to at least {need:.2f} m/s^2, or "
+                   f"lower {where}" if human else f"lower {where}, or start its route further upstream")
+            raise scenario_mod.ScenarioError(
+                f"vehicle {vid} departs at {speed:g} m/s and, braking at {decel:g} m/s^2, could not stop in the "
+                f"{room[0]:.1f} m before the junction {room[1]} where it must give way (SUMO would discard it: "
+                f"\"will not be able to depart\"): {fix}")
+
+
+def _stop_room(net, edges: list[str], front_m: float) -> tuple[float, str] | None:
+    """The distance [m] from a departing vehicle's front (``front_m`` along the first of ``edges``)
+    to the first link of its route where it has no priority (a minor, equal, stop or all-way-stop
+    link, as SUMO's insertion sees it), and that junction's id; None where the route has none.
+    Traffic lights are left out (whether one is red depends on the moment)."""
+    room = -front_m
+    for e, nxt in zip(edges, [*edges[1:], None]):
+        if not net.hasEdge(e):
+            return None
+        edge = net.getEdge(e)
+        room += edge.getLength()
+        if nxt is None or not net.hasEdge(nxt):
+            return None
+        states = {c.getState() for c in edge.getConnections(net.getEdge(nxt))}
+        if states & set("m=sw"):
+            return room, edge.getToNode().getID()
+    return None
 
 
 def prepare_run_dir(sc: scenario_mod.Scenario, out: Path) -> Path:

@@ -1160,6 +1160,38 @@ def test_force_does_not_write_over_files_no_earlier_run_created(tmp_path, capsys
             assert (o / "vehicles.csv").read_text() == "mine\n"
 
 
+@pytest.mark.parametrize("factor", [0.97, 1.03])
+def test_a_driver_who_cannot_stop_before_giving_way_is_refused_as_sumo_discards_it(factor, tmp_path, capsys):
+    """Human drivers braking too gently to stop, from their departure speed, before the junction
+    where they give way: the run is refused (exit 2, naming human.decel_mps2 and the least that
+    serves) exactly where SUMO itself, given the same route file, discards them ("will not be able
+    to depart"); it had run on with those cars gone and SUMO's raw error on the console. The least
+    deceleration the check names is the reference: 3 % below it SUMO discards, 3 % above it not."""
+    import re
+
+    from nrtraffic import scenario
+    from nrtraffic.demand import Demand
+    from nrtraffic.sumo.netbuild import sumo_binary
+
+    ov = ["outputs.warmup_s=0", "demand.controlled_share=0"]
+    capsys.readouterr()
+    assert main(["run", str(CROSS4), "--duration", "40", *sum((["--set", o] for o in ov), []),
+                 "--set", "human.decel_mps2=0.1", "--out", str(tmp_path / "r"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    least = float(re.search(r"raise human.decel_mps2 .* to at least ([0-9.]+) m/s", err).group(1))
+    assert not (tmp_path / "r").exists()
+    b = round(least * factor, 4)
+    sc = scenario.load(CROSS4, [*ov, f"human.decel_mps2={b}"])
+    routes = tmp_path / "r.rou.xml"
+    Demand.of(sc, None, 40.0).write(routes, sc.vehicle.params())
+    sumo = subprocess.run([sumo_binary("sumo"), "-n", str(sc.network_path), "-r", str(routes), "--end", "40",
+                           "--step-length", "0.1", "--no-step-log"], capture_output=True, text=True)
+    discarded = "will not be able to depart" in sumo.stdout + sumo.stderr
+    assert discarded == (factor < 1), sumo.stderr[-500:]
+    assert main(["run", str(CROSS4), "--duration", "40", *sum((["--set", o] for o in ov), []), "--set",
+                 f"human.decel_mps2={b}", "--out", str(tmp_path / "b"), "--no-progress"]) == (2 if factor < 1 else 0)
+
+
 def test_a_sweep_checks_the_demand_of_every_seed(tmp_path, capsys):
     """A seed whose random arrivals give the run no vehicle is refused (exit 2, naming the seed)
     before any run starts, as the first seed is: it had run with status "ok" and nothing done.
