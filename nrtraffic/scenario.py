@@ -489,7 +489,7 @@ class Disturbances:
                 raise ScenarioError(f"disturbances.{k} must be >= 0, got {v!r}")
         for k in ("longitudinal_accel_mps2", "lateral_accel_mps2"):
             v = getattr(self, k)
-            if not abs(v) < 5.0:
+            if not abs(v) <= 5.0:
                 raise ScenarioError(f"disturbances.{k} must be within +-5 m/s^2 (a 50 % grade), got {v!r}")
 
     @property
@@ -630,7 +630,7 @@ RANGES: dict[str, dict[str, tuple[float, float]]] = {
     "scenario": {"seed": (0, MAX_SEED), "duration_s": (0.0, MAX_DURATION_S), "begin_s": (0.0, 1e8)},
     "sumo": {"step_length_s": (0.001, 1.0), "lateral_resolution_m": (0.0, 5.0)},
     "controller": {"plant_step_s": (1e-4, 0.1), "predictor_step_s": (1e-4, 1.0), "horizon_s": (1e-3, 20.0),
-                   "alpha": (1e-3, 1e5), "damping": (0.0, 1.0), "predictor_mass_factor": (0.1, 10.0),
+                   "alpha": (1e-3, 1e5), "damping": (0.0, 1.0), "predictor_mass_factor": (0.2, 10.0),
                    "a_min_mps2": (-15.0, 0.0), "a_max_mps2": (0.0, 10.0), "steer_max_rad": (0.0, 1.2)},
     "zones": {"control_zone_m": (0.0, 5000.0), "merging_zone_m": (0.0, 500.0)},
     "planning": {"v_min_mps": (0.0, 70.0), "v_max_mps": (0.0, 70.0), "u_min_mps2": (-15.0, 0.0),
@@ -645,7 +645,7 @@ RANGES: dict[str, dict[str, tuple[float, float]]] = {
     "demand.flows": {k: (0.0, 20000.0) for k in ("left", "straight", "right", "u_turn")},
     "demand.intervals": {"begin_s": (0.0, 366 * _DAY_S), "end_s": (0.0, 366 * _DAY_S), "scale": (0.0, 100.0)},
     "human": {"accel_mps2": (0.1, 10.0), "decel_mps2": (0.1, 15.0), "sigma": (0.0, 0.99), "tau_s": (0.01, 10.0),
-              "min_gap_m": (0.0, 20.0), "speed_dev": (0.0, 1.0), "conflict_margin_s": (0.0, 60.0),
+              "min_gap_m": (0.0, 20.0), "speed_dev": (0.0, 0.5), "conflict_margin_s": (0.0, 60.0),
               "queue_reach_m": (0.0, 1000.0)},
     "junction": {"lateral_clearance_m": (0.0, 5.0)},
     "junctions": {"control_zone_m": (0.0, 5000.0), "merging_zone_m": (0.0, 500.0)},
@@ -655,7 +655,7 @@ RANGES: dict[str, dict[str, tuple[float, float]]] = {
                  "gap_margin_m": (0.0, 50.0), "lateral_margin_m": (0.0, 5.0)},
     "disturbances": {"position_noise_m": (0.0, 5.0), "speed_noise_mps": (0.0, 10.0), "heading_noise_rad": (0.0, 0.5),
                      "actuator_lag_s": (0.0, 2.0), "observer_time_s": (0.0, 10.0),
-                     "longitudinal_accel_mps2": (0.0, 10.0), "lateral_accel_mps2": (0.0, 10.0)},
+                     "longitudinal_accel_mps2": (-5.0, 5.0), "lateral_accel_mps2": (-5.0, 5.0)},
     "outputs": {"trajectory_interval_s": (0.0, 3600.0), "warmup_s": (0.0, 366 * _DAY_S),
                 "measure_end_s": (0.0, 366 * _DAY_S), "stall_s": (0.0, 366 * _DAY_S)},
     "approaches": {"merge_entry_pos_m": (0.0, 1e5)},
@@ -664,14 +664,34 @@ RANGES: dict[str, dict[str, tuple[float, float]]] = {
 }
 
 
+# the bounds of RANGES that a key may not take itself (JSON Schema's exclusiveMinimum / exclusiveMaximum)
+OPEN: dict[str, str] = {
+    "controller.a_min_mps2": "max", "controller.a_max_mps2": "min", "controller.steer_max_rad": "min",
+    "zones.control_zone_m": "min", "zones.merging_zone_m": "min", "junctions.control_zone_m": "min",
+    "junctions.merging_zone_m": "min", "planning.v_min_mps": "min", "planning.v_max_mps": "min",
+    "planning.u_min_mps2": "max", "planning.u_max_mps2": "min", "demand.entry_speed_mps": "min",
+    "human.speed_dev": "max", "outputs.trajectory_interval_s": "min",
+}
+
+
+def range_text(name: str, key: str) -> str:
+    """``name.key``'s range as an interval: ``[lo, hi]``, with ``(`` or ``)`` at an open bound (:data:`OPEN`)."""
+    lo, hi = RANGES[name][key]
+    side = OPEN.get(f"{name}.{key}")
+    return f"{'(' if side == 'min' else '['}{lo:g}, {hi:g}{')' if side == 'max' else ']'}"
+
+
 def _check_ranges(name: str, values: dict) -> None:
-    """Refuse a numeric key given outside its :data:`RANGES` (NaN and infinities too), naming it."""
+    """Refuse a numeric key given outside its :data:`RANGES` (NaN and infinities too; an open
+    bound of :data:`OPEN` itself too), naming it."""
     for key, (lo, hi) in RANGES.get(name, {}).items():
         v = values.get(key)
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             continue
-        if not (lo <= v <= hi):
-            raise ScenarioError(f"{name}.{key} = {v!r} is outside its range [{lo:g}, {hi:g}]: give a value in it")
+        side = OPEN.get(f"{name}.{key}")
+        if not (lo <= v <= hi) or (side == "min" and v == lo) or (side == "max" and v == hi):
+            raise ScenarioError(f"{name}.{key} = {v!r} is outside its range {range_text(name, key)}: give a value "
+                                "in it")
 
 
 def _section(name: str, cls, table) -> Any:

@@ -5,7 +5,8 @@ the keys, types and defaults; their ``CHOICES`` the values a string key takes; t
 field's line (or the ``Attributes`` entry of the class docstring) its description. From them come
 the JSON Schema (``nrtraffic schema``, committed as ``docs/scenario.schema.json``, which TOML editors
 use to check and complete scenario files) and the key reference ``docs/scenario_keys.md``.
-The range of every numeric key (``scenario.RANGES``) is the schema's ``minimum`` and ``maximum``;
+The range of every numeric key (``scenario.RANGES``) is the schema's ``minimum`` and ``maximum``
+(``exclusiveMinimum`` / ``exclusiveMaximum`` at a bound the key may not take, ``scenario.OPEN``);
 further checks stay in the sections' ``validate`` methods, whose messages name the key.
 """
 
@@ -91,7 +92,10 @@ def _table(cls, skip=(), name: str | None = None) -> dict:
         if f.name in choices:
             prop["enum"] = list(choices[f.name])
         if f.name in ranges:
-            prop["minimum"], prop["maximum"] = ranges[f.name]
+            lo, hi = ranges[f.name]
+            side = S.OPEN.get(f"{name}.{f.name}")
+            prop["exclusiveMinimum" if side == "min" else "minimum"] = lo
+            prop["exclusiveMaximum" if side == "max" else "maximum"] = hi
         if docs.get(f.name):
             prop["description"] = docs[f.name]
         props[f.name] = prop
@@ -133,7 +137,12 @@ def schema_text() -> str:
 
 
 def _range(p: dict) -> str:
-    return f"{p['minimum']:g} to {p['maximum']:g}" if "minimum" in p else ""
+    """A key's range as an interval, ``(`` or ``)`` at a bound it may not take."""
+    lo = p.get("minimum", p.get("exclusiveMinimum"))
+    hi = p.get("maximum", p.get("exclusiveMaximum"))
+    if lo is None:
+        return ""
+    return f"{'(' if 'exclusiveMinimum' in p else '['}{lo:g}, {hi:g}{')' if 'exclusiveMaximum' in p else ']'}"
 
 
 def markdown_reference() -> str:

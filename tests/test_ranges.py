@@ -60,3 +60,28 @@ def test_extreme_values_are_refused_or_run_in_bounded_work(key, value, tmp_path_
     assert proc.returncode in (0, 2), (proc.returncode, proc.stderr[-500:])
     if proc.returncode == 2:
         assert sec in proc.stderr and not (out / "summary.json").exists()
+
+
+@pytest.mark.parametrize("name", sorted(n for n in S.OPEN if n.rsplit(".", 1)[0] not in _ARRAYS))
+def test_an_open_bound_is_refused_and_the_schema_says_it_is_open(name):
+    """A key whose range excludes a bound (a zone of 0 m, a speed limit of 0) is refused there,
+    naming the key, and the schema gives that bound as exclusive: the schema's minimum 0 had been
+    refused as "must be > 0", so the documented range was wider than the check."""
+    from nrtraffic.scenario_schema import json_schema
+
+    sec, key = name.rsplit(".", 1)
+    lo, hi = S.RANGES[sec][key]
+    bound = lo if S.OPEN[name] == "min" else hi
+    with pytest.raises(S.ScenarioError, match=rf"{sec}\.{key}"):
+        S.load(PAPER, [f"{sec}.{key}={bound!r}"])
+    prop = json_schema()["properties"][sec]["properties"][key]
+    assert prop["exclusiveMinimum" if S.OPEN[name] == "min" else "exclusiveMaximum"] == bound
+
+
+@pytest.mark.parametrize("setting", ["disturbances.longitudinal_accel_mps2=-5.0", "disturbances.lateral_accel_mps2=5.0",
+                                     "disturbances.longitudinal_accel_mps2=-0.5", "human.speed_dev=0.49"])
+def test_values_inside_the_documented_range_are_taken(setting):
+    """A downhill grade (a negative longitudinal disturbance) and the bounds of the documented
+    ranges are taken: the range had refused every negative grade that the check allows, and
+    allowed speed_dev up to 1 where the check stops at 0.5."""
+    S.load(PAPER, [setting])
