@@ -32,6 +32,7 @@ import numbers
 import os
 import re
 import shutil
+import socket
 import sys
 import threading
 import uuid
@@ -531,10 +532,15 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
             if scheduler:
                 try:
                     client, cluster = _connect(Client, scheduler), None
-                except (OSError, TimeoutError, ValueError) as exc:
-                    raise SweepError(f"--scheduler {scheduler}: cannot reach it within {SCHEDULER_TIMEOUT_S:g} s "
-                                     f"({type(exc).__name__}): start it, or check the address") from None
+                except (OSError, TimeoutError, ValueError):
+                    raise SweepError(f"--scheduler {scheduler}: no Dask scheduler answered within "
+                                     f"{SCHEDULER_TIMEOUT_S:g} s: start it (dask scheduler), or check the address and "
+                                     "port") from None
                 except Exception as exc:  # noqa: BLE001 - no Dask scheduler took the connection
+                    if scheduler.startswith("tls://") and "ssl" in str(exc).lower():
+                        raise SweepError(f"--scheduler {scheduler}: tls:// needs Dask's TLS settings (certificates, "
+                                         "distributed.comm.tls in the Dask configuration): set them, or give the "
+                                         "scheduler's tcp:// address") from None
                     raise SweepError(f"--scheduler {scheduler}: no Dask scheduler answers there "
                                      f"({type(exc).__name__}): check the address and port, and that it runs") from None
             elif batch is not None:
@@ -1144,7 +1150,7 @@ SWEEP_FOLDERS = ("runs", "jobs")
 
 
 # a Dask scheduler's address: [protocol://]host:port
-SCHEDULER_ADDRESS = re.compile(r"^((tcp|tls|ucx|ws|wss)://)?(\[[0-9a-fA-F:]+\]|[\w.-]+):\d{1,5}$")
+SCHEDULER_ADDRESS = re.compile(r"^((tcp|tls|ucx|ws|wss)://)?(\[[0-9a-fA-F:]+\]|[\w.-]+):(\d{1,5})$")
 WORKERS_PER_CORE = 4  # the most worker processes of a local cluster per core of the machine
 
 
@@ -1239,6 +1245,15 @@ def check_where(workers, scheduler: str | None, batch=None) -> int:
         raise SweepError(f"--workers {workers}: need at least one worker process")
     if scheduler is not None and not SCHEDULER_ADDRESS.match(scheduler):
         raise SweepError(f"--scheduler {scheduler!r}: expected a Dask scheduler's address, e.g. tcp://10.0.0.5:8786")
+    if scheduler is not None:
+        host, port = SCHEDULER_ADDRESS.match(scheduler).group(3, 4)
+        if not 1 <= int(port) <= 65535:
+            raise SweepError(f"--scheduler {scheduler}: port {port} is not a port (1 to 65535); Dask's scheduler "
+                             "listens on 8786 unless told otherwise")
+        try:
+            socket.getaddrinfo(host.strip("[]"), int(port))
+        except (OSError, UnicodeError):
+            raise SweepError(f"--scheduler {scheduler}: no host is known by the name {host}; check the address")
     cores = os.cpu_count() or 1
     if scheduler is None and batch is None and workers > WORKERS_PER_CORE * cores:
         raise SweepError(f"--workers {workers}: this machine has {cores} cores; a local cluster takes at most "

@@ -721,12 +721,22 @@ def test_a_sweep_too_large_or_with_an_unreachable_scheduler_is_refused_in_one_li
     assert main(["sweep", str(CROSS4), "--seeds", "1:2", "--duration", "5", "--set", "outputs.warmup_s=0", "--scheduler", "tcp://127.0.0.1:1",
                  "--out", str(tmp_path / "b"), "--no-progress"]) == 2
     err = capsys.readouterr().err
-    assert "cannot reach it" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert "no Dask scheduler answered within" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "b").exists()  # (refused: nothing written)
     # not an address at all: refused at once (it waited for a connection, then "cannot reach it")
     assert main(["sweep", str(CROSS4), "--seeds", "1", "--scheduler", "nonsense", "--out", str(tmp_path / "b"),
                  "--no-progress"]) == 2
     assert "expected a Dask scheduler's address" in capsys.readouterr().err
+    # a port that is none, a host nobody knows, tls:// without Dask's TLS settings: said at once, by name
+    # (they had waited 10 s for "cannot reach it (OSError)", or said "no Dask scheduler answers (TypeError)")
+    for address, said in (("tcp://127.0.0.1:99999", "port 99999 is not a port"), ("127.0.0.1:0", "port 0 is not"),
+                          ("tcp://nohost.invalid:8786", "no host is known by the name nohost.invalid"),
+                          ("tls://127.0.0.1:1", "tls:// needs Dask's TLS settings")):
+        assert main(["sweep", str(CROSS4), "--seeds", "1", "--duration", "5", "--set", "outputs.warmup_s=0",
+                     "--scheduler", address, "--out", str(tmp_path / "b"), "--no-progress"]) == 2
+        err = capsys.readouterr().err
+        assert said in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "b").exists()
 
 
 def test_a_scheduler_address_where_something_else_answers_is_refused_in_one_line(tmp_path, capsys):
