@@ -305,12 +305,13 @@ def settings(overrides) -> list[str]:
 
 def _seed_duration(sc, seed, duration_s) -> tuple[int, float | None]:
     """``seed`` and ``duration_s`` checked as the command checks ``--seed`` and ``--duration``
-    (ScenarioError naming them): a whole number 0 to 2^31 - 1, and a finite 0 to a week [s]."""
+    (ScenarioError naming them): a whole number 0 to 2^31 - 1, and a finite 0 to a week [s]; numbers,
+    not text (the command line reads its text as numbers; a string here is a slip)."""
     from nrtraffic.limits import MAX_DURATION_S, MAX_SEED
     from nrtraffic.scenario import ScenarioError
 
     if seed is not None:
-        if isinstance(seed, bool) or not isinstance(seed, (numbers.Real, str)) or str(seed).strip() == "":
+        if isinstance(seed, bool) or not isinstance(seed, numbers.Real):  # (not "3": a number, as --seed is read)
             raise ScenarioError(f"seed={seed!r}: give a whole number 0 to {MAX_SEED}")
         try:
             value = float(seed)
@@ -320,6 +321,8 @@ def _seed_duration(sc, seed, duration_s) -> tuple[int, float | None]:
             raise ScenarioError(f"seed={seed!r}: give a whole number 0 to {MAX_SEED}")
         seed = int(value)
     if duration_s is not None:
+        if isinstance(duration_s, bool) or not isinstance(duration_s, numbers.Real):
+            raise ScenarioError(f"duration_s={duration_s!r}: give seconds as a number, 0 to {MAX_DURATION_S:g}")
         try:
             d = float(duration_s)
         except (TypeError, ValueError):

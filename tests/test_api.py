@@ -110,6 +110,7 @@ def test_sweep_returns_its_table(tmp_path):
     ({"seed": 2**31}, "seed=2147483648"), ({"seed": 1.5}, "seed=1.5"), ({"seed": "abc"}, "seed='abc'"),
     ({"duration_s": float("nan")}, "duration_s=nan"), ({"duration_s": -5}, "duration_s=-5"),
     ({"duration_s": float("inf")}, "duration_s=inf"),
+    ({"seed": "3"}, "seed='3'"), ({"duration_s": "10"}, "duration_s='10'"), ({"duration_s": True}, "duration_s=True"),
 ])
 def test_api_refuses_a_seed_or_duration_the_command_refuses(tmp_path, kw, named):
     from nrtraffic.scenario import ScenarioError
