@@ -667,8 +667,7 @@ RANGES: dict[str, dict[str, tuple[float, float]]] = {
 # the bounds of RANGES that a key may not take itself (JSON Schema's exclusiveMinimum / exclusiveMaximum)
 OPEN: dict[str, str] = {
     "controller.a_min_mps2": "max", "controller.a_max_mps2": "min", "controller.steer_max_rad": "min",
-    "zones.control_zone_m": "min", "zones.merging_zone_m": "min", "junctions.control_zone_m": "min",
-    "junctions.merging_zone_m": "min", "planning.v_min_mps": "min", "planning.v_max_mps": "min",
+    "zones.control_zone_m": "min", "zones.merging_zone_m": "min", "planning.v_min_mps": "min", "planning.v_max_mps": "min",
     "planning.u_min_mps2": "max", "planning.u_max_mps2": "min", "demand.entry_speed_mps": "min",
     "human.speed_dev": "max", "outputs.trajectory_interval_s": "min",
 }

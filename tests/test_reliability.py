@@ -555,8 +555,13 @@ _ROUTE_CASES = {
     "huge_flow": ('<flow id="x" from="W_in" to="E_out" begin="0" end="100" number="1000000000"/>',
                   "more than the 1000000 vehicles one flow may have"),
     # a flow by period with no end, in an open-ended run (--duration 0 in the test): terabytes of times
-    "huge_flow_open": ('<flow id="x" route="r" begin="0" end="1e9" period="0.001"/><route id="r" edges="W_in E_out"/>',
+    "huge_flow_open": ('<flow id="x" route="r" begin="0" end="1e9" period="3"/><route id="r" edges="W_in E_out"/>',
                        "makes more than the 1000000 vehicles one flow may have in the run"),
+    # a rate no lane carries (a million vehicles in an hour had taken minutes to build and run)
+    "flow_too_dense": ('<flow id="x" route="r" begin="0" end="3600" number="1000000"/><route id="r" '
+                       'edges="W_in E_out"/>', "departs 1000000 veh/h, more than the 20000 veh/h one flow may have"),
+    "flow_at_once": ('<flow id="x" route="r" begin="5" end="5" number="3"/><route id="r" edges="W_in E_out"/>',
+                     "departs all at one moment"),
     # flows SUMO refuses, taken silently (one rate of two used, or the flow dropped)
     "two_rates": ('<flow id="x" route="r" begin="0" end="100" period="1" vehsPerHour="100"/><route id="r" '
                   'edges="W_in E_out"/>', "gives both period and vehsPerHour; give one rate"),
@@ -576,7 +581,7 @@ _ROUTE_CASES = {
     "exp_tiny_trip": ('<flow id="x" from="W_in" to="E_out" begin="0" end="20" period="exp(1e-300)"/>',
                       "a rate below 1e-09 per second makes no vehicle in any run"),
     "huge_flow_route": ('<flow id="x" route="r" begin="0" end="100" number="1000000000"/><route id="r" edges="W_in E_out"/>',
-                        "number=1000000000 is more than the 1000000 vehicles one flow may have"),
+                        "more than the 20000 veh/h one flow may have"),
     "unknown_edges": ('<trip id="x" depart="1" from="W_in" to="Nowhere_out"/>', "The edge 'Nowhere_out' within the route for trip 'x' is not known"),
     "no_movement": ('<vehicle id="x" depart="1"><route edges="W_in"/></vehicle>', "uses no movement of the junction"),
     "id_twice": ('<route id="r" edges="W_in E_out"/><vehicle id="a" route="r" depart="1"/>'

@@ -57,6 +57,7 @@ DEPART_LANES = ("random", "free", "allowed", "best", "best_prob", "first")  # SU
 DEPART_SPEEDS = ("random", "max", "desired", "speedLimit", "last", "avg")
 DEPART_POSITIONS = ("random", "free", "random_free", "base", "last", "stop", "splitFront")
 MAX_FLOW_VEHICLES = 1_000_000  # vehicles of one <flow> given by number
+MAX_FLOW_RATE_VEH_H = 20000.0  # one <flow>'s departures per hour (as demand.rate_veh_h: ten times a lane's capacity)
 _ROUTED: dict[tuple, Path] = {}  # (file, its version, network) -> the file routed by duarouter, once per process
 _TMP: list = []  # the process's folder for routed and merged files, removed when the process ends
 
@@ -331,7 +332,15 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
         begin = _num(el, "begin", where, 0.0)
         if el.get("end") is not None and _num(el, "end", where) < begin:
             raise DemandFileError(f"{where}: end={el.get('end')} is before begin={el.get('begin')}")
-        end = min(_num(el, "end", where, FLOW_END_S), end_s)  # (SUMO's own end where it gives none: always finite)
+        own_end = _num(el, "end", where, FLOW_END_S)  # (SUMO's own end where it gives none: always finite)
+        end = min(own_end, end_s)
+        span = (own_end if el.get("end") is not None or el.get("number") is None else end) - begin
+        size = _flow_size(el, begin + span)
+        if size > 0 and (span <= 0 or size / span * 3600.0 > MAX_FLOW_RATE_VEH_H):
+            rate = f"{size / span * 3600.0:.0f} veh/h" if span > 0 else "all at one moment"
+            raise DemandFileError(f"{where}: departs {rate}, more than the {MAX_FLOW_RATE_VEH_H:g} veh/h one flow may "
+                                  "have (ten times a lane's capacity): check its period, vehsPerHour, number, begin "
+                                  "and end")
         if el.get("number") is None and _flow_size(el, end) > MAX_FLOW_VEHICLES:
             raise DemandFileError(f"{where}: makes more than the {MAX_FLOW_VEHICLES} vehicles one flow may have "
                                   "in the run: give it an end (or a number) that the study needs")
@@ -341,7 +350,10 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
             if n > MAX_FLOW_VEHICLES:
                 raise DemandFileError(f"{where}: number={n} is more than the {MAX_FLOW_VEHICLES} vehicles one flow may "
                                       "have")
-            times = [begin + k * (end - begin) / n for k in range(n)] if n > 0 else []
+            # (SUMO spaces them over the flow's own end where it has one, else over the run's: the run
+            # then takes those that depart before it ends)
+            span = (own_end if el.get("end") is not None else end) - begin
+            times = [t for t in (begin + np.arange(n) * (span / n)).tolist() if t < end] if n > 0 else []
         elif el.get("period", "").startswith("exp("):
             rate = _exp_rate(el, where)
             t = begin
