@@ -68,6 +68,10 @@ def _check(run_dir: Path) -> dict:
         why = f": {s['error']}" if s.get("error") else ""
         raise CompareError(f"{run_dir}: not a finished run (summary.json status {status!r}{why}); compare runs "
                            "whose status is ok, or run it again")
+    lost = [k for k in ("scenario", *RUN_FIGURES) if k not in s]
+    if lost:  # (every finished run writes them all; one without is edited or damaged, and would show "-")
+        raise CompareError(f"{run_dir}/summary.json has no {', '.join(lost[:4])}{' and more' if len(lost) > 4 else ''}"
+                           ": not a finished run's summary (edited or damaged); run it again")
     for name, needed in (("movements.csv", ("approach", "movement")), ("approaches.csv", ("approach",)),
                          ("vehicles.csv", ("vehicle_id", "approach", "movement"))):
         if not (run_dir / name).is_file():

@@ -1591,3 +1591,17 @@ def test_compare_refuses_a_movements_table_damaged_inside(edit, named, tmp_path,
     (run / "movements.csv").write_text("\n".join(lines) + "\n")
     assert main(["compare", str(golden), str(run), "--out", str(tmp_path / "cmp")]) == 2
     assert named in capsys.readouterr().err and not (tmp_path / "cmp").exists()
+
+
+def test_compare_refuses_a_summary_without_its_figures(tmp_path, capsys):
+    """A summary.json that says "ok" but lacks the figures every finished run writes (edited, or cut
+    short by hand): compare refuses it naming what is missing; it had shown "-" for them, exit 0."""
+    golden = ROOT / "tests" / "golden" / "cross4"
+    run = tmp_path / "run"
+    shutil.copytree(golden, run)
+    s = json.loads((run / "summary.json").read_text())
+    del s["mean_delay_s"], s["throughput_veh_h"]
+    (run / "summary.json").write_text(json.dumps(s))
+    assert main(["compare", str(golden), str(run), "--out", str(tmp_path / "cmp")]) == 2
+    err = capsys.readouterr().err
+    assert "summary.json has no throughput_veh_h, mean_delay_s" in err and not (tmp_path / "cmp").exists()
