@@ -98,14 +98,13 @@ def _check_depart_speeds(sc: scenario_mod.Scenario, demand, departures) -> None:
     runs ("Departure speed ... too high for the departure edge"), nor faster than its type can stop
     from before a link where it must give way (SUMO discards it: "will not be able to depart"), and
     no ``[[vehicles]]`` placed beyond its end (SUMO moved it to the end without a word)."""
+    from nrtraffic.sumo.adapter import VehicleType
     from nrtraffic.sumo.network import read_net
 
     net = read_net(sc.network_path)
     limit: dict[str, float] = {}
     listed = {v.id for v in sc.vehicles}
     firsts: dict[str, str] = {}  # route -> its first edge (a route is shared by many vehicles)
-    from nrtraffic.sumo.adapter import VehicleType
-
     stops: dict[tuple, tuple[float, str] | None] = {}
     dt = sc.sumo.step_length_s
     length = sc.vehicle.params().length

@@ -1253,7 +1253,7 @@ def check_where(workers, scheduler: str | None, batch=None) -> int:
         try:
             socket.getaddrinfo(host.strip("[]"), int(port))
         except (OSError, UnicodeError):
-            raise SweepError(f"--scheduler {scheduler}: no host is known by the name {host}; check the address")
+            raise SweepError(f"--scheduler {scheduler}: no host is known by the name {host}; check the address") from None
     cores = os.cpu_count() or 1
     if scheduler is None and batch is None and workers > WORKERS_PER_CORE * cores:
         raise SweepError(f"--workers {workers}: this machine has {cores} cores; a local cluster takes at most "
