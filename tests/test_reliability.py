@@ -1605,3 +1605,19 @@ def test_compare_refuses_a_summary_without_its_figures(tmp_path, capsys):
     assert main(["compare", str(golden), str(run), "--out", str(tmp_path / "cmp")]) == 2
     err = capsys.readouterr().err
     assert "summary.json has no throughput_veh_h, mean_delay_s" in err and not (tmp_path / "cmp").exists()
+
+
+def test_a_run_folder_whose_path_holds_xml_characters_runs(tmp_path):
+    """An ``&`` or ``<`` in ``--out`` (a folder name such as ``a&b``): the run goes through, its queue
+    detectors write queues.xml, and a replay from that folder matches. The path had been written
+    unescaped into the SUMO files, and SUMO stopped at once ("unterminated entity reference"): exit 1."""
+    out = tmp_path / "a&b<c>"
+    assert main(["run", str(CROSS4), "--duration", "70", "--set", "outputs.warmup_s=0", "--out", str(out),
+                 "--no-progress"]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "ok" and s["vehicles_completed"] > 0
+    assert len(ET.parse(out / "queues.xml").getroot().findall("interval")) > 0
+    for j in ("allway_stop",):
+        assert main(["baseline", str(CROSS4), "--junction", j, "--duration", "70", "--set", "outputs.warmup_s=0",
+                     "--out", str(tmp_path / f"x&{j}"), "--no-progress"]) == 0
+    assert main(["replay", str(out), "--no-progress"]) == 0

@@ -318,13 +318,18 @@ def queue_detectors(sc, layout: Layout, network_path: Path, workdir: Path, sdir:
     from nrtraffic.results import QUEUE_DETECTOR
     from nrtraffic.sumo.network import edge_lanes
 
-    out = (workdir / "queues.xml").resolve()
+    import os
+    from xml.sax.saxutils import quoteattr
+
+    # (relative to the additional file, as SUMO reads it, and escaped: a run folder's path may hold
+    # an & or a <, which SUMO would read as XML)
+    out = os.path.relpath((workdir / "queues.xml").resolve(), Path(sdir).resolve())
     # (with its schema declared and ids that it allows, SUMO's --xml-validation always accepts the file)
     lines = ['<additional xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" '
              'xsi:noNamespaceSchemaLocation="http://sumo.dlr.de/xsd/additional_file.xsd">']
     for _, lane, length in edge_lanes(network_path, layout.approaches):
         lines.append(f'    <laneAreaDetector id="{QUEUE_DETECTOR}{lane}" lanes="{lane}" pos="0" '
-                     f'endPos="{length:.3f}" friendlyPos="true" period="{QUEUE_PERIOD_S:g}" file="{out}"/>')
+                     f'endPos="{length:.3f}" friendlyPos="true" period="{QUEUE_PERIOD_S:g}" file={quoteattr(out)}/>')
     lines.append("</additional>")
     path = sdir / "queues.add.xml"
     path.write_text("\n".join(lines) + "\n")

@@ -139,13 +139,14 @@ def write_sumocfg(path: Path, network: Path, routes: Path, step_length_s: float,
     """A SUMO configuration that opens ``network`` with ``routes`` (``sumo-gui -c path``), paths
     relative to its own folder, starting at ``begin_s`` (SUMO's clock, ``scenario.begin_s``)."""
     import os
+    from xml.sax.saxutils import quoteattr
 
-    def rel(p):
-        return os.path.relpath(Path(p).resolve(), Path(path).resolve().parent)
+    def rel(p):  # (escaped: a file name may hold an & or a <)
+        return quoteattr(os.path.relpath(Path(p).resolve(), Path(path).resolve().parent))
 
     Path(path).write_text(
         '<?xml version="1.0" encoding="UTF-8"?>\n<configuration>\n'
-        f'    <input>\n        <net-file value="{rel(network)}"/>\n        <route-files value="{rel(routes)}"/>\n'
+        f'    <input>\n        <net-file value={rel(network)}/>\n        <route-files value={rel(routes)}/>\n'
         f'    </input>\n    <time>\n        <begin value="{begin_s:g}"/>\n        <step-length value="{step_length_s:g}"/>\n'
         '    </time>\n</configuration>\n')
 
