@@ -363,11 +363,12 @@ def foreign_files(d: Path) -> list[str]:
 
 def remove_stale(out: Path) -> list[Path]:
     """Delete the temporary run directories of runs that were killed (``.<control>.tmp-<pid>-...``
-    under ``out/runs``) whose process is gone; returns them."""
+    under ``out/runs``), and Dask's scratch folders of sweeps that were (``jobs/.dask-scratch-<pid>-...``),
+    whose process is gone; returns them."""
     gone = []
-    for d in Path(out).glob("runs/**/.*.tmp-*"):
+    for d in (*Path(out).glob("runs/**/.*.tmp-*"), *Path(out).glob("jobs/.dask-scratch-*")):
         try:
-            pid = int(d.name.split(".tmp-")[1].split("-")[0])
+            pid = int(d.name.split(".tmp-" if ".tmp-" in d.name else ".dask-scratch-")[1].split("-")[0])
         except (IndexError, ValueError):
             continue
         try:
@@ -527,8 +528,15 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
         # a worker that dies (e.g. killed by the OS) is one failure of that job, not three; and a
         # worker holds only the job it runs (saturation 1.0: the others wait at the scheduler), so
         # that its death counts against that job alone, not against one queued behind it
+        # Dask's own scratch files (its workers' spill space and locks) in the sweep's folder, removed
+        # afterwards: by default they go to the system's temporary folder, outside --out
+        jobs_dir = out / "jobs"
+        made_jobs = not jobs_dir.exists()
+        scratch = jobs_dir / f".dask-scratch-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+        scratch.mkdir(parents=True)
         with dask.config.set({"distributed.scheduler.allowed-failures": 1,
-                              "distributed.scheduler.worker-saturation": 1.0}):
+                              "distributed.scheduler.worker-saturation": 1.0,
+                              "temporary-directory": str(scratch)}), _removed(scratch, jobs_dir if made_jobs else None):
             if scheduler:
                 try:
                     client, cluster = _connect(Client, scheduler), None
@@ -551,7 +559,7 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
             else:
                 with _quiet_workers():
                     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                           dashboard_address=":0", memory_limit=0,
+                                           dashboard_address=":0", memory_limit=0, local_directory=str(scratch),
                                            silence_logs=logging.CRITICAL)  # (a failed run is a row, not a traceback)
                 client = Client(cluster)
             try:
@@ -575,6 +583,19 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
     write_tables(df, out, figures)
     record_tables(out, written=True)
     return df
+
+
+@contextlib.contextmanager
+def _removed(scratch: Path, folder: Path | None):
+    """Remove ``scratch`` when the block ends (however it ends), and ``folder`` (made for it) if it
+    is then empty."""
+    try:
+        yield
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+        if folder is not None:
+            with contextlib.suppress(OSError):
+                folder.rmdir()
 
 
 def collect(jobs: list[Job], errors: dict[str, str] | None = None) -> pd.DataFrame:

@@ -1621,3 +1621,20 @@ def test_a_run_folder_whose_path_holds_xml_characters_runs(tmp_path):
         assert main(["baseline", str(CROSS4), "--junction", j, "--duration", "70", "--set", "outputs.warmup_s=0",
                      "--out", str(tmp_path / f"x&{j}"), "--no-progress"]) == 0
     assert main(["replay", str(out), "--no-progress"]) == 0
+
+
+def test_a_sweep_writes_nothing_outside_its_folder(tmp_path):
+    """A sweep on local workers keeps Dask's scratch files (spill space, locks) in its own folder and
+    removes them: the system's temporary folder is untouched and none is left in ``--out``. They had
+    gone to ``$TMPDIR/dask-scratch-space``, outside the sweep's folder."""
+    import os
+
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    out = tmp_path / "s"
+    r = subprocess.run([sys.executable, "-m", "runners.cli", "sweep", str(CROSS4), "--seeds", "1", "--duration", "5",
+                        "--set", "outputs.warmup_s=0", "--workers", "1", "--out", str(out), "--no-progress"],
+                       cwd=ROOT, env={**os.environ, "TMPDIR": str(tmp)}, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-800:]
+    assert list(tmp.iterdir()) == [] and not (out / "jobs").exists()
+    assert not any("dask" in p.name for p in out.rglob("*"))
