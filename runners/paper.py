@@ -8,6 +8,7 @@ of the prediction horizon T, which the paper does not state.
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import pandas as pd
@@ -85,7 +86,7 @@ def claim_out(out: Path, experiment: str) -> None:
     out = Path(out)
     usable_path(out)
     owner = in_a_sweep(out)
-    if owner is not None and (owner != out.absolute() or (out / "runs").exists()):
+    if owner is not None and (owner != Path(os.path.normpath(out.absolute())) or (out / "runs").exists()):
         raise OutputError(f"--out {out} lies in the sweep folder {owner}: choose a folder outside it")
     inside = in_a_run(out)
     if inside is not None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -363,7 +364,7 @@ def in_a_sweep(path: Path) -> Path | None:
     wrote), that sweep's folder (above its ``runs/``); None."""
     from runners.sweep import FINGERPRINT
 
-    for p in dict.fromkeys((Path(path).absolute(), Path(path).resolve())):  # (as given, and through its links)
+    for p in dict.fromkeys((Path(os.path.normpath(Path(path).absolute())), Path(path).resolve())):  # (as given, and through its links)
         for q in (p, *p.parents):
             if read_manifest(q, sweep=True) is not None:
                 return q
@@ -377,7 +378,7 @@ def in_a_run(path: Path) -> Path | None:
     ``scenario.resolved.toml`` of a run of an earlier version) that ``path`` lies in, below it (as
     given, or through its links); None. Whatever is written there would be taken for that run's
     files, and a ``--force`` on it would remove them."""
-    for p in dict.fromkeys((Path(path).absolute(), Path(path).resolve())):
+    for p in dict.fromkeys((Path(os.path.normpath(Path(path).absolute())), Path(path).resolve())):
         for q in p.parents:
             if (q / "summary.json").is_file() and (read_manifest(q) is not None
                                                    or (q / "scenario.resolved.toml").is_file()):

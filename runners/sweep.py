@@ -1187,7 +1187,7 @@ def check_out(out: Path) -> None:
         usable_path(out)
     except OutputError as exc:
         raise SweepError(str(exc)) from None
-    owner = in_a_sweep(out.absolute().parent)
+    owner = in_a_sweep(Path(os.path.normpath(out.absolute())).parent)
     if owner is not None:
         raise SweepError(f"--out {out} lies in the sweep folder {owner}: choose a folder outside it")
     inside = in_a_run(out)

@@ -1261,6 +1261,9 @@ def test_nothing_is_written_into_another_runs_folder(tmp_path, capsys):
         err = capsys.readouterr().err
         assert "lies in the run directory" in err or "would overwrite the run it verifies" in err, (argv, err)
     assert sorted(p.relative_to(run) for p in run.rglob("*")) == before
+    # a path that only passes through the run's folder (run/../new) leads outside it: taken
+    assert main(["run", str(CROSS4), "--out", f"{run}/../new", *short]) == 0
+    assert (tmp_path / "new" / "summary.json").is_file()
 
 
 def test_force_keeps_a_users_file_named_like_one_the_run_did_not_write(tmp_path, capsys):
