@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -622,6 +623,14 @@ def _coerce(section: str, key: str, typ, value):
     raise ScenarioError(f"{where}: unsupported type")  # pragma: no cover
 
 
+def _missing(path: Path) -> str:
+    """Why ``path`` is no file to read: "not found", "is a folder", or "is not a regular file" (a
+    device, a pipe or a socket, which would be read for ever or not at all)."""
+    if not os.path.lexists(path) or not path.exists():
+        return "not found"
+    return "is a folder, not a file" if path.is_dir() else "is not a regular file (a device, pipe or socket)"
+
+
 # the physically meaningful range [lo, hi] of every numeric key (inclusive; in the key's unit), checked
 # before a section's own validate(), and given in the JSON Schema as minimum and maximum. Bounds on
 # the work per simulated second (steps per step) are checked in Controller.validate and check_work.
@@ -755,7 +764,7 @@ def _from_sumocfg(data: dict, base_dir: Path, allow_outside: bool) -> None:
         raise ScenarioError(f"scenario.sumocfg = {name!r} lies outside the scenario's folder (allowed only with "
                             "--allow-outside)")
     if not cfg.is_file():
-        raise ScenarioError(f"scenario.sumocfg: file not found: {cfg}")
+        raise ScenarioError(f"scenario.sumocfg: file {_missing(cfg)}: {cfg}")
     try:
         root = ET.parse(cfg).getroot()
     except (OSError, ET.ParseError) as exc:
@@ -887,7 +896,7 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
                 raise ScenarioError(f"demand.sumo_routes = {sc.demand.sumo_routes!r} lies outside the scenario's folder "
                                     f"{sc.base_dir} (allowed only with --allow-outside)")
             if not routes.is_file():
-                raise ScenarioError(f"demand.sumo_routes: file not found: {routes}")
+                raise ScenarioError(f"demand.sumo_routes: file {_missing(routes)}: {routes}")
         if sc.demand.flows or sc.demand.rate_veh_h > 0:
             raise ScenarioError("demand.sumo_routes replaces demand.flows and demand.rate_veh_h: give one of them")
     elif sc.demand.depart_offset_s > 0:
@@ -911,7 +920,8 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
         raise ScenarioError(f"scenario.network = {sc.general.network!r} is a folder, not a network file: name the "
                             ".net.xml file in it")
     if not sc.network_path.is_file():
-        raise ScenarioError(f"network file not found: {sc.network_path} (scenario.network = {sc.general.network!r})")
+        raise ScenarioError(f"network file {_missing(sc.network_path)}: {sc.network_path} (scenario.network = "
+                            f"{sc.general.network!r})")
     try:  # (the tracker's predictor model: the vehicle with its mass scaled)
         sc.vehicle.params().with_mass_factor(sc.controller.predictor_mass_factor)
     except ValueError as exc:
@@ -965,7 +975,7 @@ def load(path: str | Path, overrides: list[str] | tuple[str, ...] = (), allow_ou
     if path.is_dir():
         path = path / "scenario.toml"
     if not path.is_file():
-        raise ScenarioError(f"scenario file not found: {path}")
+        raise ScenarioError(f"scenario file {_missing(path)}: {path}")
     try:
         data = tomllib.loads(path.read_bytes().decode("utf-8-sig"))  # (past a byte-order mark: some editors write one)
     except UnicodeDecodeError as exc:

@@ -47,6 +47,19 @@ def test_missing_network_and_malformed_file(tmp_path, paper_curved_path):
         scenario.load(tmp_path / "none.toml")
 
 
+def test_a_network_that_is_a_device_or_a_pipe_is_named_as_such(tmp_path, paper_curved_path):
+    """``scenario.network = "/dev/zero"`` or a named pipe: "is not a regular file", not "not found"
+    (it exists), and nothing is read from it (a pipe would block)."""
+    import os
+
+    fifo = tmp_path / "pipe.net.xml"
+    os.mkfifo(fifo)
+    for net in ("/dev/zero", str(fifo)):
+        f = _write(tmp_path, paper_curved_path, lambda s: s.replace('"curved.net.xml"', f'"{net}"'))
+        with pytest.raises(ScenarioError, match="network file is not a regular file"):
+            scenario.load(f, allow_outside=True)
+
+
 def test_a_file_saved_with_a_byte_order_mark_reads_as_without(tmp_path, paper_curved_path):
     """Some editors save UTF-8 with a byte-order mark; the file reads as the same scenario."""
     f = _write(tmp_path, paper_curved_path, lambda s: s)
