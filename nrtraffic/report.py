@@ -161,8 +161,12 @@ table.cmp tr.g{background:#f1f4f8}table.cmp tr.h{background:#fff}table.cmp tr.fi
 table.cmp td{white-space:nowrap}"""
 
 
+# the generator every page of nrtraffic's names in its head (a page of the user's never does)
+GENERATOR = "<meta name='generator' content='nrtraffic'>"
+
+
 def _page(title: str, body: list[str]) -> str:
-    return (f"<!DOCTYPE html>\n<html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
+    return (f"<!DOCTYPE html>\n<html><head><meta charset='utf-8'>{GENERATOR}<title>{html.escape(title)}</title>"
             f"<style>{_STYLE}</style></head><body><h1>{html.escape(title)}</h1>\n" + "\n".join(body)
             + "\n</body></html>\n")
 

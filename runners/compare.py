@@ -9,6 +9,25 @@ from pathlib import Path
 OUTPUTS = ("compare.html", "compare_runs.csv", "compare_movements.csv", "compare_approaches.csv")
 
 
+# how each of compare's files begins (its report: the generator nrtraffic's pages name)
+OWN_START = {"compare.html": None, "compare_runs.csv": "run,control,", "compare_movements.csv": "approach,movement,run,",
+             "compare_approaches.csv": "approach,run,control,"}
+
+
+def _written_by_compare(path: Path) -> bool:
+    """Whether ``path`` is one of compare's files as compare writes them (its report names
+    nrtraffic as its generator; its tables begin with their header)."""
+    from nrtraffic.report import GENERATOR
+
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4096).decode("utf-8", "replace")
+    except OSError:
+        return False
+    start = OWN_START[path.name]
+    return GENERATOR in head if start is None else head.startswith(start)
+
+
 def main(args) -> int:
     """Compare ``args.run_dirs``; write the report into ``args.out`` (default
     ``runs/<scenario>-compare``) and print it. Exit status 2, with the reason, when the run
@@ -29,6 +48,10 @@ def main(args) -> int:
             raise OutputError(f"--out {out} lies in the sweep folder {owner}: write the comparison into a folder "
                               "outside it")
         ours = [n for n in OUTPUTS if (Path(out) / n).exists()]
+        mine = [n for n in ours if not (Path(out) / n).is_symlink() and not _written_by_compare(Path(out) / n)]
+        if mine:  # (--force replaces an earlier comparison's files, never a file of the user's of that name)
+            raise OutputError(f"--out {out} holds {', '.join(mine)}, which no comparison wrote (a file of your "
+                              "own, or a comparison's of an earlier version): choose another folder, or move it")
         if ours and not args.force:
             raise OutputError(f"--out {out} already holds {', '.join(ours)}: choose another folder, or --force to "
                               "replace them (nothing else in it is touched)")

@@ -1569,6 +1569,27 @@ def test_compare_replaces_a_link_in_its_out_instead_of_writing_through_it(tmp_pa
     assert not (out / "compare_runs.csv").is_symlink() and (out / "compare_runs.csv").stat().st_size > 5
 
 
+def test_compare_force_replaces_its_own_files_and_never_the_users(tmp_path, capsys):
+    """``compare --force`` replaces an earlier comparison's four files; a file of the user's with one
+    of their names (a compare.html of their own) is refused by name, with or without --force, and
+    stays. It had been overwritten."""
+    golden = ROOT / "tests" / "golden" / "cross4"
+    other = tmp_path / "other"
+    shutil.copytree(golden, other)
+    out = tmp_path / "cmp"
+    assert main(["compare", str(golden), str(other), "--out", str(out)]) == 0
+    assert main(["compare", str(golden), str(other), "--out", str(out), "--force"]) == 0  # its own: replaced
+    for name, text in (("compare.html", "<html>MINE</html>\n"), ("compare_movements.csv", "a,b\n1,2\n")):
+        mine = tmp_path / f"mine_{name}"
+        mine.mkdir()
+        (mine / name).write_text(text)
+        capsys.readouterr()
+        for force in ([], ["--force"]):
+            assert main(["compare", str(golden), str(other), "--out", str(mine), *force]) == 2
+            assert f"holds {name}, which no comparison wrote" in capsys.readouterr().err
+        assert (mine / name).read_text() == text and sorted(p.name for p in mine.iterdir()) == [name]
+
+
 @pytest.mark.parametrize("edit, named", [("extra", "a movement given twice or without its name"),
                                          ("twice", "a movement given twice or without its name"),
                                          ("text", "throughput_veh_h holds text"),

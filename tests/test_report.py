@@ -213,12 +213,13 @@ def test_compare_refuses_unfinished_runs_and_other_scenarios(cross4_pair, corrid
     shutil.copytree(nr, running)
     s = json.loads((running / "summary.json").read_text())
     (running / "summary.json").write_text(json.dumps({**s, "status": "running"}))
-    mine = tmp_path / "mine"  # a folder holding a compare.html of the user's own: kept, unless --force
+    mine = tmp_path / "mine"  # a folder holding a compare.html of the user's own: kept, also with --force
     mine.mkdir()
     (mine / "compare.html").write_text("my own page")
     capsys.readouterr()
     assert main(["compare", str(nr), str(cross4_pair / "tl"), "--out", str(mine)]) == 2
-    assert "already holds compare.html" in capsys.readouterr().err and (mine / "compare.html").read_text() == "my own page"
+    assert "holds compare.html, which no comparison wrote" in capsys.readouterr().err
+    assert (mine / "compare.html").read_text() == "my own page"
     study = tmp_path / "study"  # a sweep's folder: its resume would refuse files no sweep wrote
     study.mkdir()
     (study / "manifest.json").write_text(json.dumps({"sweep": 1, "preexisting": [], "created": []}))
