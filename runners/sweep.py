@@ -146,6 +146,10 @@ def parse_grid(items: list[str]) -> list[tuple[str, list[str]]]:
         key, sep, values = item.partition("=")
         key = key.strip()
         vals = [v.strip() for v in values.split(",")]
+        if any(c in values for c in "[]{}"):  # (its commas would split a list or a table into pieces)
+            raise SweepError(f"--grid {item!r}: a list or table cannot be a grid value on the command line (its "
+                             "commas separate the values); sweep over it with the Python API, "
+                             "nrtraffic.sweep(..., grid={'" + key + "': [[...], [...]]}), or one sweep per value")
         if not sep or "." not in key or not any(vals):
             raise SweepError(f"--grid {item!r}: expected SECTION.KEY=V1,V2,...")
         if not all(vals):  # ("400,,600" or "400,": a value left out, not a point to drop in silence)

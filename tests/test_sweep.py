@@ -91,6 +91,11 @@ def test_bad_grid_is_refused_before_any_run(tmp_path, capsys):
     assert code == 2
     assert "no_such_key" in capsys.readouterr().err
     assert not (tmp_path / "o" / "runs").exists()
+    # a list value: its commas would cut it into pieces ('["--threads"' had been named as a bad value)
+    code = main(["sweep", str(SCENARIOS / "cross4"), "--seeds", "1", "--grid", 'sumo.extra_args=["--threads","2"],[]',
+                 "--out", str(tmp_path / "o")])
+    assert code == 2 and "a list or table cannot be a grid value on the command line" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
 
 
 def test_a_sweep_run_replays(study):
