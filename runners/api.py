@@ -340,7 +340,7 @@ def _path(value, name: str) -> Path:
 
     if not isinstance(value, (str, os.PathLike)) or isinstance(os.fspath(value), bytes):
         raise ScenarioError(f"{name}={value!r}: give a path as a str or a pathlib.Path")
-    return Path(value)
+    return Path(os.path.expanduser(value))  # (a leading ~ as the home folder, as the table writers read it)
 
 
 def one_source(overrides, seed, duration_s) -> None:

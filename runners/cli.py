@@ -9,6 +9,7 @@ kernels fresh) and the Python API's helpers are imported when first used.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -220,7 +221,7 @@ def _add_bench(sub) -> None:
                        description="Benchmark the compiled kernels, whole runs against SUMO alone on the same "
                                    "demand, where a run's time goes, and peak memory (ratios measured in one "
                                    "run; takes a few minutes).")
-    p.add_argument("--write", type=str, default=None, metavar="FILE",
+    p.add_argument("--write", type=os.path.expanduser, default=None, metavar="FILE",
                    help="write the table to FILE (markdown; default bench/results.md, with --scale bench/scale.md; "
                         "with --quick only where given)")
     p.add_argument("--quick", action="store_true",
@@ -268,8 +269,6 @@ def display_missing(out: Path) -> str | None:
     ``DISPLAY`` (X11) or ``WAYLAND_DISPLAY``; None where one is set, or on macOS and Windows. The
     message names the virtual display to run under, and the run's ``.sumocfg`` to open after a
     headless run."""
-    import os
-
     if not sys.platform.startswith(("linux", "freebsd", "openbsd", "netbsd")):
         return None
     if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
@@ -304,15 +303,17 @@ def _add_schema(sub) -> None:
                                    "format (editors that read JSON Schema check and complete scenario.toml with it; "
                                    "a committed copy is docs/scenario.schema.json).")
     p.add_argument("--markdown", action="store_true", help="the key reference in markdown instead (docs/scenario_keys.md)")
-    p.add_argument("--write", type=str, default=None, metavar="FILE", help="write to FILE instead of printing")
+    p.add_argument("--write", type=os.path.expanduser, default=None, metavar="FILE",
+                   help="write to FILE instead of printing")
 
 
 def _folder(text: str) -> Path:
-    """An ``--out`` folder as given: an empty one (``--out ""``, an unset shell variable) would be
-    the working folder, which nobody means."""
+    """An ``--out`` folder as given, with a leading ``~`` read as the home folder (as the shell reads
+    it unquoted, and as SUMO and the table writers read it: the whole run goes to one place): an
+    empty one (``--out ""``, an unset shell variable) would be the working folder, which nobody means."""
     if not text.strip():
         raise argparse.ArgumentTypeError("is empty: name a folder (--out runs/mine)")
-    return Path(text)
+    return Path(os.path.expanduser(text))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1662,3 +1662,24 @@ def test_a_sweep_writes_nothing_outside_its_folder(tmp_path):
     assert r.returncode == 0, r.stderr[-800:]
     assert list(tmp.iterdir()) == [] and not (out / "jobs").exists()
     assert not any("dask" in p.name for p in out.rglob("*"))
+
+
+def test_a_quoted_tilde_in_out_is_the_home_folder_for_the_whole_run(tmp_path, monkeypatch, capsys):
+    """``--out "~/r1"`` (quoted, so the shell leaves the ~): the whole run goes to the home folder's
+    r1, and a file of the user's there is refused as elsewhere. The checks had read it as a folder
+    named ~ while SUMO and the table writers read the home folder: a user's tripinfo.xml there was
+    overwritten, and the run failed with its files in two places."""
+    home = tmp_path / "home"
+    (home / "r1").mkdir(parents=True)
+    (home / "r1" / "tripinfo.xml").write_text("mine\n")
+    monkeypatch.setenv("HOME", str(home))
+    monkeypatch.chdir(tmp_path)
+    short = ["--duration", "30", "--set", "outputs.warmup_s=0", "--no-progress"]
+    assert main(["run", str(CROSS4), "--out", "~/r1", *short, "--force"]) == 2
+    assert (home / "r1" / "tripinfo.xml").read_text() == "mine\n"
+    assert main(["run", str(CROSS4), "--out", "~/r2", *short]) == 0
+    assert (home / "r2" / "summary.json").is_file() and not (tmp_path / "~").exists()
+    assert main(["compare", str(ROOT / "tests" / "golden" / "cross4"), str(home / "r2"), "--out", "~/c"]) == 0
+    assert sorted(p.name for p in (home / "c").iterdir()) == ["compare.html", "compare_approaches.csv",
+                                                             "compare_movements.csv", "compare_runs.csv"]
+    assert not (tmp_path / "~").exists()
