@@ -330,6 +330,8 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
         if el.get("number") is not None and not el.get("number").strip().isdigit():  # (SUMO reads an integer)
             raise DemandFileError(f"{where}: number={el.get('number')!r} is not a whole number of vehicles")
         begin = _num(el, "begin", where, 0.0)
+        if begin < 0:  # (SUMO refuses it: "Negative begin time in the definition of flow")
+            raise DemandFileError(f"{where}: begin={el.get('begin')} is negative (SUMO's clock starts at 0)")
         if el.get("end") is not None and _num(el, "end", where) < begin:
             raise DemandFileError(f"{where}: end={el.get('end')} is before begin={el.get('begin')}")
         own_end = _num(el, "end", where, FLOW_END_S)  # (SUMO's own end where it gives none: always finite)
