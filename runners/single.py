@@ -503,6 +503,8 @@ def _report(result: RunResult, out: Path) -> None:
     from nrtraffic import report
 
     try:
+        # (listed before they are drawn: a run killed while it draws them can still be replaced with --force)
+        plan_manifest(out, REPORT_FILES)
         report.run_report(out, summary=result.summary)
     except (Exception, KeyboardInterrupt) as exc:  # noqa: BLE001 - any of them leaves the run without its report
         why = exc.strerror if isinstance(exc, OSError) and exc.strerror else f"{type(exc).__name__}: {exc}"

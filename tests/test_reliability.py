@@ -1685,3 +1685,28 @@ def test_a_quoted_tilde_in_out_is_the_home_folder_for_the_whole_run(tmp_path, mo
     assert sorted(p.name for p in (home / "c").iterdir()) == ["compare.html", "compare_approaches.csv",
                                                              "compare_movements.csv", "compare_runs.csv"]
     assert not (tmp_path / "~").exists()
+
+
+_KILLED_WHILE_DRAWING = """
+import os, sys
+from nrtraffic import report
+def drawing(out, summary=None):
+    (out / "delays.png").write_bytes(b"half a figure")
+    os._exit(137)  # (killed outright, as by SIGKILL, while it draws)
+report.run_report = drawing
+from runners.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_a_run_killed_while_it_draws_its_figures_can_be_replaced_with_force(tmp_path, capsys):
+    """A run killed outright while it draws its figures (a half-written delays.png, no final
+    manifest): ``--force`` replaces it. Its figures had not been in its manifest, and the folder was
+    refused as holding files of the user's."""
+    out = tmp_path / "r"
+    args = ["run", str(CROSS4), "--duration", "30", "--set", "outputs.warmup_s=0", "--out", str(out), "--no-progress"]
+    r = subprocess.run([sys.executable, "-c", _KILLED_WHILE_DRAWING, *args], cwd=ROOT, capture_output=True, text=True,
+                       timeout=600)
+    assert r.returncode == 137 and (out / "delays.png").read_bytes() == b"half a figure", r.stderr[-500:]
+    assert main([*args, "--force"]) == 0
+    assert json.loads((out / "summary.json").read_text())["status"] == "ok"
