@@ -114,8 +114,14 @@ class Demand:
             veh.append((v.id, mv, v.depart_s, v.depart_speed_mps, v.depart_pos_m))
         twice = [i for i, n in Counter(v[0] for v in veh).items() if n > 1]
         if twice:
-            raise ValueError(f"vehicle id {twice[0]!r} is given twice ([[vehicles]] and the generated or file demand "
-                             "name vehicles <approach>.<k> and by the file's ids): give the [[vehicles]] another id")
+            listed = {v.id for v in self.sc.vehicles}
+            if twice[0] in listed:
+                raise ValueError(f"vehicle id {twice[0]!r} is given twice ([[vehicles]] and the generated or file "
+                                 "demand name vehicles <approach>.<k> and by the file's ids): give the [[vehicles]] "
+                                 "another id")
+            raise ValueError(f"vehicle id {twice[0]!r} is given twice: by demand.sumo_routes, and by the copy that "
+                             f"demand.scale = {self.sc.demand.scale:g} makes of another of its vehicles (named "
+                             "<id>#<k>): rename that vehicle in the file")
         veh.sort(key=lambda v: v[2])
         if self.layout.next_junction:
             veh = self._extend_routes(veh, rates)

@@ -41,6 +41,9 @@ def usable_path(path: Path) -> None:
     if long or len(os.fsencode(str(path.absolute()))) > 4000:
         raise OutputError(f"--out {str(path)[:60]}...: a name in the path is longer than the file system takes "
                           "(255 bytes a name, about 4000 the whole path); choose a shorter one")
+    if path.is_symlink() and not path.exists():  # (mkdir would say "File exists")
+        raise OutputError(f"--out {path}: is a link to {os.readlink(path)}, which does not exist (or a loop of links); "
+                          "remove the link, or give the folder itself")
     if path.exists() and not path.is_dir():
         raise OutputError(f"--out {path}: exists and is not a folder")
     odd = sorted({c for c in str(path.absolute()) if c in SUMO_PATH_CHARS or not c.isprintable()})
@@ -113,20 +116,23 @@ def claim(out: Path, sc, seed, duration, control: str, force: bool) -> list[Path
     """Check the scenario against its network and build its demand (exit 2 on an error, before
     anything is written), then make ``out`` ready for the run. Returns the folders made for it
     (for :func:`give_up`)."""
-    from runners.single import check, check_demand, claim_run_dir
+    from runners.single import check, check_demand, claim_run_dir, lock_run_dir, unlock_run_dir
 
     check(sc)
     check_demand(sc, seed, duration)
     new = [p for p in (Path(out).absolute(), *Path(out).absolute().parents) if not os.path.lexists(p)]
     writable_dir(out)
     try:
+        lock_run_dir(out)  # (before anything of an earlier run there is removed: another run may be writing it)
         claim_run_dir(out, sc, seed, duration, control, force)
     except ValueError as exc:
+        unlock_run_dir(out)
         for p in new:  # (the folders made for the refused run go again)
             with contextlib.suppress(OSError):
                 p.rmdir()
         raise OutputError(str(exc)) from None
     except OSError as exc:
+        unlock_run_dir(out)
         raise OutputError(f"--out {out}: cannot clear the earlier run: {exc}") from None
     return new
 
@@ -134,15 +140,19 @@ def claim(out: Path, sc, seed, duration, control: str, force: bool) -> list[Path
 @contextlib.contextmanager
 def refused(out: Path, new: list[Path]):
     """Around a run after :func:`claim`: a scenario error (exit 2) before SUMO starts leaves
-    nothing of the run (:func:`give_up`)."""
+    nothing of the run (:func:`give_up`); however it ends, the folder's lock goes."""
     from nrtraffic.scenario import ScenarioError
     from nrtraffic.sumo.network import NetworkError
+    from runners.single import unlock_run_dir
 
     try:
         yield
     except (ScenarioError, NetworkError):
+        unlock_run_dir(out)
         give_up(out, new)
         raise
+    finally:  # (the run has ended, whichever way: the folder is free)
+        unlock_run_dir(out)
 
 
 def give_up(out: Path, new: list[Path]) -> None:
@@ -294,13 +304,30 @@ def settings(overrides) -> list[str]:
         return []
     if isinstance(overrides, str):
         return [overrides]
-    if isinstance(overrides, Mapping):
-        return [f"{k}={_toml(v)}" for k, v in overrides.items()]
-    if not isinstance(overrides, Iterable):
-        from nrtraffic.scenario import ScenarioError
+    from nrtraffic.scenario import ScenarioError
 
-        raise ScenarioError(f"overrides={overrides!r}: give {{'section.key': value}} or ['section.key=value', ...]")
-    return [str(o) for o in overrides]
+    how = "give {'section.key': value}, {'section': {'key': value}} or ['section.key=value', ...]"
+    if isinstance(overrides, Mapping):
+        out = []
+        for k, v in overrides.items():
+            if "." not in str(k) and isinstance(v, Mapping):  # ({'demand': {'rate_veh_h': 300}}: a section's keys)
+                out += [f"{k}.{kk}={_toml(vv)}" for kk, vv in v.items()]
+            elif "." not in str(k):
+                raise ScenarioError(f"overrides: {k!r} is no 'section.key'; {how}")
+            else:
+                out.append(f"{k}={_toml(v)}")
+        return out
+    if not isinstance(overrides, Iterable):
+        raise ScenarioError(f"overrides={overrides!r}: {how}")
+    out = []
+    for o in overrides:
+        if isinstance(o, tuple) and len(o) == 2 and isinstance(o[0], str):  # (('demand.rate_veh_h', 600), ...)
+            out.append(f"{o[0]}={_toml(o[1])}")
+        elif isinstance(o, str):
+            out.append(o)
+        else:
+            raise ScenarioError(f"overrides: {o!r} is no 'section.key=value'; {how}")
+    return out
 
 
 def _seed_duration(sc, seed, duration_s) -> tuple[int, float | None]:
@@ -472,16 +499,27 @@ def sweep(scenario: str | Path, seeds: Iterable[int] | str, *, grid: Mapping[str
     from runners import sweep as sweep_mod
 
     _, duration_s = _seed_duration(None, 0, duration_s)  # (checked as run's; a seed of 0 stands in)
-    if not isinstance(seeds, (str, Iterable)) or isinstance(seeds, (bytes, bytearray)):
+    if not isinstance(seeds, (str, Iterable)) or isinstance(seeds, (bytes, bytearray, Mapping)):
         raise sweep_mod.SweepError(f"seeds={seeds!r}: give the seeds, e.g. range(1, 21) or \"1:20\"")
     if not isinstance(seeds, str):
         seeds = list(seeds)
+        if not seeds:
+            raise sweep_mod.SweepError("seeds: none given; give at least one, e.g. range(1, 21)")
         odd = [s for s in seeds if isinstance(s, bool) or not isinstance(s, numbers.Integral)]
         if odd:  # (1.5 had been run as seed 1, True as seed 1)
             raise sweep_mod.SweepError(f"seeds: {odd[0]!r} is not an integer; give the seeds as integers, e.g. "
                                        "range(1, 21)")
         seeds = ",".join(str(int(s)) for s in seeds)
     seeds = sweep_mod.parse_seeds(seeds)
+    if grid is not None and not isinstance(grid, Mapping):
+        raise sweep_mod.SweepError(f"grid={grid!r}: give {{'section.key': [value, ...]}}")
+    if scheduler is not None and not isinstance(scheduler, str):
+        raise sweep_mod.SweepError(f"scheduler={scheduler!r}: give a Dask scheduler's address as text, e.g. "
+                                   "'tcp://10.0.0.5:8786'")
+    if not isinstance(baselines, str) and (not isinstance(baselines, Iterable)
+                                           or not all(isinstance(b, str) for b in baselines)):
+        raise sweep_mod.SweepError(f"baselines={baselines!r}: give SUMO's controls by name, e.g. ['actuated', "
+                                   "'allway_stop'] or 'actuated,allway_stop'")
     points = []  # (not through the text of --grid: a list value, or a string with a comma, is one value)
     for k, values in (grid or {}).items():
         values = [values] if isinstance(values, str) or not isinstance(values, Iterable) else list(values)

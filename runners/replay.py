@@ -314,7 +314,7 @@ def replay(run_dir: Path, out: Path | None = None, rtol: float = RTOL, atol: flo
     from nrtraffic import scenario
     from nrtraffic.engine import RunFailed
     from runners.baseline import run_baseline
-    from runners.single import run_scenario
+    from runners.single import run_scenario, unlock_run_dir
 
     run_dir = Path(run_dir)
     for f in ("scenario.resolved.toml", "summary.json", "vehicles.csv"):
@@ -341,16 +341,21 @@ def replay(run_dir: Path, out: Path | None = None, rtol: float = RTOL, atol: flo
             raise ReplayError(f"--out {out} would overwrite the run it verifies ({run_dir}"
                               f"{f', whose {linked.name} is a link into it' if linked is not None else ''}): give "
                               "another folder")
-        from runners.single import read_manifest
+        from runners.single import LOCK, lock_run_dir, read_manifest
 
-        if Path(out).is_dir() and any(Path(out).iterdir()) and not force:
+        if Path(out).is_dir() and any(p.name != LOCK for p in Path(out).iterdir()) and not force:
             replace = ", or --force to replace the run in it" if read_manifest(Path(out)) is not None else (
                 " (it holds no run's manifest.json: files of your own?)")
             raise ReplayError(f"--out {out} is not empty: choose another folder{replace}")
         control = f"sumo_{recorded['junction_type']}" if recorded.get("junction_type") else "nrtraffic"
         try:
+            if Path(out).is_dir():  # (before an earlier run there is removed: another may be writing it)
+                lock_run_dir(Path(out))
             claim_run_dir(Path(out), sc, None, None, control, force)
+            Path(out).mkdir(parents=True, exist_ok=True)
+            lock_run_dir(Path(out))
         except ValueError as exc:
+            unlock_run_dir(Path(out))
             raise ReplayError(str(exc)) from None
     if out is None:
         tmp = Path(tempfile.mkdtemp(prefix="nrtraffic-replay-"))
@@ -372,6 +377,8 @@ def replay(run_dir: Path, out: Path | None = None, rtol: float = RTOL, atol: flo
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
+        else:
+            unlock_run_dir(Path(out))
 
 
 def main(args) -> int:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import os
@@ -228,8 +229,61 @@ RUN_FILES = ("summary.json", "vehicles.csv", "movements.csv", "approaches.csv", 
 
 
 def _tree(out: Path) -> set[str]:
-    """Every file and folder under ``out``, relative to it (POSIX paths)."""
-    return {p.relative_to(out).as_posix() for p in out.rglob("*")}
+    """Every file and folder under ``out``, relative to it (POSIX paths), but the lock of a run
+    writing there (:data:`LOCK`)."""
+    return {p.relative_to(out).as_posix() for p in out.rglob("*")} - {LOCK}
+
+
+# the file that marks a run folder as being written (the pid of the process writing it): a second
+# run into the same folder, or a --force on it, is refused while that process runs
+LOCK = ".nrtraffic-running"
+
+
+def lock_run_dir(out: Path) -> None:
+    """Mark ``out`` (an existing folder) as being written by this process, or ValueError where
+    another process that still runs is writing there. The lock of a process that is gone (a run
+    killed outright) is taken over."""
+    path = Path(out) / LOCK
+    for _ in range(3):
+        try:
+            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+        except FileExistsError:
+            pid = _lock_pid(path)
+            if pid is not None and pid != os.getpid() and _alive(pid):
+                raise ValueError(f"--out {out} is being written by another run (process {pid}): wait until it has "
+                                 "ended, or choose another folder") from None
+            with contextlib.suppress(OSError):  # (stale: its process is gone)
+                path.unlink()
+            continue
+        with os.fdopen(fd, "w") as f:
+            f.write(f"{os.getpid()}\n")
+        return
+    raise ValueError(f"--out {out}: another run takes it at the same moment; choose another folder")
+
+
+def unlock_run_dir(out: Path) -> None:
+    """Remove this process's lock of ``out`` (:func:`lock_run_dir`), if it holds one."""
+    path = Path(out) / LOCK
+    if _lock_pid(path) == os.getpid():
+        with contextlib.suppress(OSError):
+            path.unlink()
+
+
+def _lock_pid(path: Path) -> int | None:
+    try:
+        return int(path.read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # (another user's: it runs)
+        return True
+    return True
 
 
 def read_manifest(out: Path, sweep: bool = False) -> dict | None:
@@ -329,7 +383,7 @@ def claim_run_dir(out: Path, sc: scenario_mod.Scenario, seed: int | None, durati
     if inside is not None:
         raise ValueError(f"--out {out} lies in the run directory {inside}: its files would be taken for that run's "
                          "(and a --force on it would remove them); choose a folder outside it")
-    if not out.is_dir() or not any(out.iterdir()):
+    if not out.is_dir() or not any(p.name != LOCK for p in out.iterdir()):
         return
     same = False
     try:

@@ -150,6 +150,37 @@ def test_api_sweep_refuses_what_the_command_line_refuses(seeds, grid, message, t
     assert not (tmp_path / "s").exists()
 
 
+@pytest.mark.parametrize("kw, message", [
+    ({"seeds": []}, "seeds: none given"), ({"seeds": range(1, 1)}, "seeds: none given"),
+    ({"seeds": {1: 2}}, "seeds={1: 2}: give the seeds"),  # (a mapping: its keys had been taken as the seeds)
+    ({"seeds": [1], "grid": [("demand.rate_veh_h", [300])]}, "grid=[('demand.rate_veh_h', [300])]: give"),
+    ({"seeds": [1], "scheduler": 123}, "scheduler=123: give a Dask scheduler's address as text"),
+    ({"seeds": [1], "baselines": [None]}, "baselines=[None]: give SUMO's controls by name"),
+])
+def test_api_sweep_names_a_wrong_argument(kw, message, tmp_path):
+    """Arguments of the wrong kind are named (SweepError), not an AttributeError or TypeError from
+    inside, nor a message about --seeds, a flag the caller did not use; nothing is written."""
+    from runners.sweep import SweepError
+
+    with pytest.raises(SweepError, match=re.escape(message)):
+        nrtraffic.sweep(CROSS4, duration_s=5, workers=1, out=tmp_path / "s", **kw)
+    assert not (tmp_path / "s").exists()
+
+
+def test_api_overrides_take_a_sections_table_and_pairs(tmp_path):
+    """``overrides={'demand': {'rate_veh_h': 300}}`` and ``[('demand.rate_veh_h', 300)]`` set the
+    key as ``{'demand.rate_veh_h': 300}`` does (they had been refused naming --set); anything else
+    is named."""
+    from nrtraffic.scenario import ScenarioError
+    from runners.api import settings
+
+    assert settings({"demand": {"rate_veh_h": 300}}) == settings([("demand.rate_veh_h", 300)]) \
+        == settings({"demand.rate_veh_h": 300}) == ["demand.rate_veh_h=300"]
+    for bad in ({"demand": 3}, [3], [("a.b", 1, 2)]):
+        with pytest.raises(ScenarioError, match="overrides: .* is no 'section.key"):
+            settings(bad)
+
+
 def test_api_values_are_checked_before_anything_is_written(tmp_path):
     """A numpy number is a number; a value of no setting's type, an unknown junction and a
     fractional number of workers are refused before any folder is made (a raw TypeError had come

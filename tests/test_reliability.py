@@ -337,6 +337,9 @@ def _scenario_copy(tmp_path, old=None, new=None, extra=""):
      "SUMO needs at least one thread"),
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--vehroute-output.exit-times"]', "",
      "sets up a SUMO output that the run does not write"),
+    # a setting of an output the run does write (it had been called one the run does not write)
+    ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--tripinfo-output.write-unfinished"]', "",
+     "sets up SUMO's tripinfo-output, which the run writes itself with its own settings"),
     # an option the run sets itself (SUMO refused it once started), and one that makes SUMO wait for ever
     ("step_length_s = 0.1", 'step_length_s = 0.1\nextra_args = ["--time-to-teleport", "-1"]', "",
      "--time-to-teleport: the run sets it itself"),
@@ -1710,3 +1713,48 @@ def test_a_run_killed_while_it_draws_its_figures_can_be_replaced_with_force(tmp_
     assert r.returncode == 137 and (out / "delays.png").read_bytes() == b"half a figure", r.stderr[-500:]
     assert main([*args, "--force"]) == 0
     assert json.loads((out / "summary.json").read_text())["status"] == "ok"
+
+
+def test_a_folder_a_run_is_writing_is_refused_to_a_second_run(tmp_path, capsys):
+    """While a run writes its folder, a second run into it (with --force too) or a replay into it
+    is refused (exit 2, naming the process), and the first run ends "ok" with its own files: the
+    second had removed them (--force) and both had said "ok". A lock left by a run killed outright
+    (its process gone) is taken over."""
+    out = tmp_path / "r"
+    long = _start_long_run(out)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / "summary.json").is_file() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        capsys.readouterr()
+        for argv in (["run", str(CROSS4), "--duration", "30", "--set", "outputs.warmup_s=0", "--out", str(out),
+                      "--force", "--no-progress"],
+                     ["baseline", str(CROSS4), "--junction", "priority", "--duration", "30", "--set",
+                      "outputs.warmup_s=0", "--out", str(out), "--force", "--no-progress"],
+                     ["replay", str(ROOT / "tests" / "golden" / "cross4"), "--out", str(out), "--force",
+                      "--no-progress"]):
+            assert main(argv) == 2, argv
+            assert f"is being written by another run (process {long.pid})" in capsys.readouterr().err
+        assert long.poll() is None and (out / "summary.json").is_file()
+    finally:
+        long.send_signal(signal.SIGINT)
+        long.communicate(timeout=180)
+    assert json.loads((out / "summary.json").read_text())["status"] == "failed"  # (stopped by the test)
+    stale = tmp_path / "stale"
+    stale.mkdir()
+    (stale / ".nrtraffic-running").write_text("999999999\n")  # (no such process)
+    assert main(["run", str(CROSS4), "--duration", "30", "--set", "outputs.warmup_s=0", "--out", str(stale),
+                 "--no-progress"]) == 0
+    assert not (stale / ".nrtraffic-running").exists() and not (out / ".nrtraffic-running").exists()
+
+
+def test_an_out_that_is_a_broken_link_or_a_loop_is_named_as_such(tmp_path, capsys):
+    """``--out`` a link to nowhere, or a loop of links: exit 2 saying so (it had said "cannot write
+    there: File exists")."""
+    (tmp_path / "dangling").symlink_to(tmp_path / "gone")
+    (tmp_path / "loop").symlink_to(tmp_path / "loop")
+    for name in ("dangling", "loop"):
+        assert main(["run", str(CROSS4), "--duration", "30", "--set", "outputs.warmup_s=0", "--out",
+                     str(tmp_path / name), "--no-progress"]) == 2
+        assert "which does not exist (or a loop of links)" in capsys.readouterr().err
+    assert not (tmp_path / "gone").exists()

@@ -334,3 +334,31 @@ def test_stops_in_a_route_file_are_left_out_with_a_warning(tmp_path):
     warnings = json.loads((out / "summary.json").read_text())["warnings"]
     assert any("its 1 <stop> elements are left out" in w for w in warnings), warnings
     assert any("its 1 persons and containers are left out" in w for w in warnings), warnings  # (said nothing)
+
+
+def test_a_scale_copy_with_a_files_id_and_a_compressed_network_are_named(tmp_path):
+    """A route file's vehicle ``a#1`` beside the copy ``demand.scale = 2`` makes of ``a`` (named
+    ``a#1`` too): the clash is named as such (the message had blamed [[vehicles]], which the scenario
+    does not have). A gzipped network (SUMO reads it; the checks read plain XML) is named as
+    compressed, not as "not well-formed"."""
+    import gzip
+    import shutil
+
+    from conftest import SCENARIOS
+
+    d = tmp_path / "s"
+    d.mkdir()
+    shutil.copy(SCENARIOS / "cross4" / "net.net.xml", d / "net.net.xml")
+    (d / "r.rou.xml").write_text('<routes><route id="r" edges="W_in E_out"/><vehicle id="a" route="r" depart="1"/>'
+                                 '<vehicle id="a#1" route="r" depart="5"/></routes>\n')
+    toml = ('[scenario]\nname = "s"\nnetwork = "{net}"\nduration_s = 60.0\n[junction]\nid = "C"\n[demand]\n'
+            'sumo_routes = "r.rou.xml"\n{scale}[outputs]\nwarmup_s = 0\n')
+    (d / "a.toml").write_text(toml.format(net="net.net.xml", scale="scale = 2.0\n"))
+    r = _run(["run", d / "a.toml", "--out", tmp_path / "o"])
+    assert r.returncode == 2 and "by the copy that demand.scale = 2 makes" in r.stderr and "[[vehicles]]" not in r.stderr
+    with open(d / "net.net.xml", "rb") as f, gzip.open(d / "net.net.xml.gz", "wb") as g:
+        g.write(f.read())
+    (d / "b.toml").write_text(toml.format(net="net.net.xml.gz", scale=""))
+    r = _run(["run", d / "b.toml", "--out", tmp_path / "o"])
+    assert r.returncode == 2 and "net.net.xml.gz is compressed (gzip)" in r.stderr, r.stderr
+    assert not (tmp_path / "o").exists()

@@ -149,6 +149,14 @@ def check_scenario(net_path: Path, junction_ids=(), edges: tuple[str, ...] = ())
             elif el.tag == "edge" and el.get("function") != "internal":
                 edge_ids.add(el.get("id"))
     except ET.ParseError as exc:
+        try:
+            with open(net_path, "rb") as f:
+                packed = f.read(2) == b"\x1f\x8b"
+        except OSError:
+            packed = False
+        if packed:  # (SUMO reads it; the checks and the run's geometry read plain XML)
+            raise NetworkError(f"{net_path} is compressed (gzip): give the network as plain XML (gunzip -k "
+                               f"{net_path.name}, then name the .net.xml)") from None
         raise NetworkError(f"{net_path} is not a readable SUMO network: {exc}") from None
     except OSError as exc:
         raise NetworkError(f"{net_path} cannot be read: {exc}") from None
@@ -398,8 +406,11 @@ def check_sumo_args(args: tuple[str, ...]) -> None:
     of_output = [_shown(a, n) for a, n in given if n not in sumo_writing_options()
                  and any(n.startswith(w + ".") for w in sumo_writing_options())]
     if of_output:
-        raise NetworkError(f"sumo.extra_args: {', '.join(of_output)} sets up a SUMO output that the run does not "
-                           "write; leave it out")
+        ours = [w for w in ("tripinfo-output", "collision-output", "fcd-output")
+                if of_output[0].lstrip("-").startswith(w)]
+        what = (f"sets up SUMO's {ours[0]}, which the run writes itself with its own settings (its figures read "
+                "them)" if ours else "sets up a SUMO output that the run does not write")
+        raise NetworkError(f"sumo.extra_args: {', '.join(of_output)} {what}; leave it out")
     writing = [_shown(a, n) for a, n in given if n in sumo_writing_options()]
     if writing:
         raise NetworkError(f"sumo.extra_args: {', '.join(writing)} would write files outside the run folder; "
