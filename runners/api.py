@@ -46,6 +46,9 @@ def usable_path(path: Path) -> None:
                           "remove the link, or give the folder itself")
     if path.exists() and not path.is_dir():
         raise OutputError(f"--out {path}: exists and is not a folder")
+    if "${" in str(path.absolute()) or str(path).startswith("~"):  # (SUMO reads them; nrtraffic takes them as they are)
+        raise OutputError(f"--out {path}: SUMO reads ${{NAME}} in a file name as an environment variable and a leading ~ "
+                          "as a home folder, so its files would go elsewhere; give the folder's path without them")
     odd = sorted({c for c in str(path.absolute()) if c in SUMO_PATH_CHARS or not c.isprintable()})
     if odd:
         raise OutputError(f"--out {path}: its path holds {' '.join(repr(c) for c in odd)}, which SUMO misreads in a "
@@ -370,9 +373,10 @@ def _path(value, name: str) -> Path:
     return Path(os.path.expanduser(value))  # (a leading ~ as the home folder, as the table writers read it)
 
 
-def one_source(overrides, seed, duration_s) -> None:
+def one_source(overrides, seed, duration_s, api: bool = False) -> None:
     """Refuse (ScenarioError, exit 2) a seed or duration given both as a flag and as a ``--set``
-    of its scenario key: the flag wins, and the setting would be dropped without a word."""
+    of its scenario key: the flag wins, and the setting would be dropped without a word. ``api``:
+    named as the Python API's arguments (``seed=``, ``overrides``), not as flags."""
     from nrtraffic.scenario import ScenarioError
 
     given = {}
@@ -388,6 +392,9 @@ def one_source(overrides, seed, duration_s) -> None:
                 same = float(given[name]) == float(value)
             except ValueError:
                 same = False
+            if not same and api:
+                raise ScenarioError(f"{flag.lstrip('-')}{'_s' if flag == '--duration' else ''}={value} and overrides "
+                                    f"{name}={given[name]} both give it: give one of them")
             if not same:
                 raise ScenarioError(f"{flag} {value} and --set {name}={given[name]} both give it: give one of them")
 
@@ -436,7 +443,7 @@ def run(scenario: str | Path, *, seed: int | None = None, duration_s: float | No
     from nrtraffic import scenario as scenario_mod
     from runners.single import run_scenario
 
-    one_source(settings(overrides), seed, duration_s)
+    one_source(settings(overrides), seed, duration_s, api=True)
     sc = scenario_mod.load(_path(scenario, "scenario"), settings(overrides),
                            allow_outside=_flag(allow_outside, "allow_outside"))
     progress, report = _flag(progress, "progress"), _flag(report, "report")
@@ -459,7 +466,7 @@ def baseline(scenario: str | Path, junction: str, *, seed: int | None = None, du
     from nrtraffic.sumo.netbuild import BASELINES
     from runners.baseline import run_baseline
 
-    one_source(settings(overrides), seed, duration_s)
+    one_source(settings(overrides), seed, duration_s, api=True)
     sc = scenario_mod.load(_path(scenario, "scenario"), settings(overrides),
                            allow_outside=_flag(allow_outside, "allow_outside"))
     progress, report = _flag(progress, "progress"), _flag(report, "report")

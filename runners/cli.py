@@ -62,7 +62,7 @@ _gui_delay = _bounded(float, 0.0, 10000.0, "a number of milliseconds", "the dela
 
 def _add_run(sub) -> None:
     p = sub.add_parser("run", help="run one scenario", description="Run one scenario and write its run directory.")
-    p.add_argument("scenario", type=Path, help="scenario.toml (or the folder holding it)")
+    p.add_argument("scenario", type=_given_path, help="scenario.toml (or the folder holding it)")
     p.add_argument("--seed", type=_seed, default=None, help="random seed of arrivals and SUMO (default: the scenario's)")
     p.add_argument("--duration", type=_duration, default=None, metavar="S",
                    help="simulated time [s] (default: the scenario's; 0 runs until every vehicle has left)")
@@ -103,7 +103,7 @@ def _add_baseline(sub) -> None:
     p = sub.add_parser("baseline", help="the same demand under SUMO's own junction control",
                        description="Run a junction scenario's demand and seed with SUMO driving every vehicle "
                                    "under its own junction control, into a run directory of the same form.")
-    p.add_argument("scenario", type=Path, help="scenario.toml with a [junction] (or its folder)")
+    p.add_argument("scenario", type=_given_path, help="scenario.toml with a [junction] (or its folder)")
     p.add_argument("--junction", required=True, choices=BASELINES, metavar="CONTROL",
                    help="SUMO's junction control: as_is (the network's own control, unchanged: its signal "
                         "programmes and right of way), actuated (SUMO's gap-based actuated signals on the "
@@ -133,7 +133,7 @@ def _add_sweep(sub) -> None:
                     "recorded as failed while the others go on. Writes DIR/sweep.csv (one row per run), "
                     "DIR/sweep_summary.csv (mean, sd, 95 % CI per grid point and control), DIR/sweep.md and "
                     "the figures DIR/sweep.png and DIR/sweep_seeds.png. Exit status 1 when a run failed.")
-    p.add_argument("scenario", type=Path, help="scenario.toml (or the folder holding it)")
+    p.add_argument("scenario", type=_given_path, help="scenario.toml (or the folder holding it)")
     p.add_argument("--seeds", required=True, help="seeds, A:B inclusive or a comma list, e.g. 1:20")
     p.add_argument("--grid", action="append", default=[], metavar="SECTION.KEY=V1,V2,...",
                    help="a scenario setting and its values (repeatable; the grid is the product), "
@@ -186,7 +186,7 @@ def _add_replay(sub) -> None:
                     "and trajectories.parquet with the recorded ones: every number must satisfy "
                     "|replayed - recorded| <= atol + rtol |recorded| (wall-clock figures excepted). Exit status 0 "
                     "when they match, 1 with the differences (which figure, which vehicle, by how much) when not.")
-    p.add_argument("run_dir", type=Path, help="a run directory written by run, baseline or sweep")
+    p.add_argument("run_dir", type=_given_path, help="a run directory written by run, baseline or sweep")
     p.add_argument("--rtol", type=_tolerance, default=RTOL, help=f"relative tolerance (default {RTOL:g})")
     p.add_argument("--atol", type=_tolerance, default=ATOL, help=f"absolute tolerance, in each figure's unit "
                    f"(default {ATOL:g})")
@@ -207,7 +207,7 @@ def _add_compare(sub) -> None:
                     "DIR/compare_runs.csv, DIR/compare_movements.csv and DIR/compare_approaches.csv (one row "
                     "per run and movement or approach) and prints the tables. Exit status 2 for a folder that is "
                     "not a finished run, or runs of different scenarios.")
-    p.add_argument("run_dirs", type=Path, nargs="+", metavar="RUN_DIR",
+    p.add_argument("run_dirs", type=_given_path, nargs="+", metavar="RUN_DIR",
                    help="run directories written by run or baseline (or a sweep's runs), two or more")
     p.add_argument("--out", type=_folder, default=None, metavar="DIR",
                    help="where to write the report (default: runs/<scenario>-compare); an empty or new folder")
@@ -305,6 +305,11 @@ def _add_schema(sub) -> None:
     p.add_argument("--markdown", action="store_true", help="the key reference in markdown instead (docs/scenario_keys.md)")
     p.add_argument("--write", type=os.path.expanduser, default=None, metavar="FILE",
                    help="write to FILE instead of printing")
+
+
+def _given_path(text: str) -> Path:
+    """A file or folder to read, with a leading ``~`` read as the home folder (as ``--out`` is)."""
+    return Path(os.path.expanduser(text))
 
 
 def _folder(text: str) -> Path:

@@ -357,6 +357,9 @@ def replay(run_dir: Path, out: Path | None = None, rtol: float = RTOL, atol: flo
         except ValueError as exc:
             unlock_run_dir(Path(out))
             raise ReplayError(str(exc)) from None
+        except OSError as exc:  # (a folder it cannot make or clear: read-only, say)
+            unlock_run_dir(Path(out))
+            raise ReplayError(f"--out {out}: cannot write there: {exc.strerror or exc}") from None
     if out is None:
         tmp = Path(tempfile.mkdtemp(prefix="nrtraffic-replay-"))
         out = tmp / "run"

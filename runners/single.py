@@ -29,6 +29,9 @@ def check(sc: scenario_mod.Scenario) -> None:
         if "," in str(f):
             raise NetworkError(f"{f}: its path holds ',', which SUMO reads in a file name as a list separator; "
                                "move the scenario to a folder without commas")
+        if "${" in str(f):
+            raise NetworkError(f"{f}: its path holds '${{', which SUMO reads in a file name as an environment "
+                               "variable; move the scenario to a folder without it")
     check_scenario(sc.network_path, [j.id for j in sc.controlled_junctions()], edges)
     check_sumo_args(tuple(sc.sumo.extra_args))
 
@@ -234,29 +237,36 @@ def _tree(out: Path) -> set[str]:
     return {p.relative_to(out).as_posix() for p in out.rglob("*")} - {LOCK}
 
 
-# the file that marks a run folder as being written (the pid of the process writing it): a second
-# run into the same folder, or a --force on it, is refused while that process runs
+# the file that marks a folder as being written (``nrtraffic <pid> <start>``: the process writing it
+# and when it started): a second run into it, or a --force on it, is refused while that process runs
 LOCK = ".nrtraffic-running"
 
 
 def lock_run_dir(out: Path) -> None:
     """Mark ``out`` (an existing folder) as being written by this process, or ValueError where
-    another process that still runs is writing there. The lock of a process that is gone (a run
-    killed outright) is taken over."""
+    another process that still runs is writing there, or where a file of that name is not such a
+    lock (a file of the user's, a link, a folder: refused, never removed). The lock of a process
+    that is gone (a run killed outright; its process id taken by another program since) is taken
+    over."""
     path = Path(out) / LOCK
     for _ in range(3):
         try:
             fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
         except FileExistsError:
-            pid = _lock_pid(path)
-            if pid is not None and pid != os.getpid() and _alive(pid):
-                raise ValueError(f"--out {out} is being written by another run (process {pid}): wait until it has "
-                                 "ended, or choose another folder") from None
+            holder = _lock_holder(path)
+            if holder is None:
+                raise ValueError(f"--out {out} holds {LOCK}, which is not a run's lock (a file of your own?): move it, "
+                                 "or choose another folder") from None
+            if holder != (os.getpid(), _started(os.getpid())) and _running(*holder):
+                raise ValueError(f"--out {out} is being written by another run (process {holder[0]}): wait until it "
+                                 f"has ended, or choose another folder (if no run writes there, remove {path})") from None
             with contextlib.suppress(OSError):  # (stale: its process is gone)
                 path.unlink()
             continue
+        except OSError as exc:
+            raise ValueError(f"--out {out}: cannot write there: {exc.strerror or exc}") from None
         with os.fdopen(fd, "w") as f:
-            f.write(f"{os.getpid()}\n")
+            f.write(f"nrtraffic {os.getpid()} {_started(os.getpid())}\n")
         return
     raise ValueError(f"--out {out}: another run takes it at the same moment; choose another folder")
 
@@ -264,26 +274,44 @@ def lock_run_dir(out: Path) -> None:
 def unlock_run_dir(out: Path) -> None:
     """Remove this process's lock of ``out`` (:func:`lock_run_dir`), if it holds one."""
     path = Path(out) / LOCK
-    if _lock_pid(path) == os.getpid():
+    if _lock_holder(path) == (os.getpid(), _started(os.getpid())):
         with contextlib.suppress(OSError):
             path.unlink()
 
 
-def _lock_pid(path: Path) -> int | None:
+def _lock_holder(path: Path) -> tuple[int, str] | None:
+    """The process id and start of the lock ``path``, or None where it is no lock of a run (a link,
+    a folder, another content)."""
+    if path.is_symlink() or not path.is_file():
+        return None
     try:
-        return int(path.read_text().split()[0])
-    except (OSError, ValueError, IndexError):
+        word, pid, started = path.read_text()[:200].split()
+        return (int(pid), started) if word == "nrtraffic" and pid.isdigit() else None
+    except (OSError, ValueError):
         return None
 
 
-def _alive(pid: int) -> bool:
+def _started(pid: int) -> str:
+    """When process ``pid`` started (its start time in clock ticks since boot, /proc/<pid>/stat), so
+    that a process id taken again by another program is not taken for the run's; "-" where unknown."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[19]
+    except (OSError, IndexError):
+        return "-"
+
+
+def _running(pid: int, started: str) -> bool:
+    """Whether the process ``pid`` that started at ``started`` (:func:`_started`) still runs."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
-    except OSError:  # (another user's: it runs)
-        return True
-    return True
+    except PermissionError:  # (another user's: it runs)
+        pass
+    except (OSError, OverflowError, ValueError):  # (no such process id at all)
+        return False
+    now = _started(pid)
+    return started == "-" or now == "-" or now == started
 
 
 def read_manifest(out: Path, sweep: bool = False) -> dict | None:

@@ -1185,7 +1185,7 @@ def check_out(out: Path) -> None:
     sweep recorded in its manifest as written (:func:`record_tables`), so that a sweep's tables and
     report never replace a user's files of the same name."""
     from runners.api import OutputError, usable_path
-    from runners.single import MANIFEST, in_a_run, in_a_sweep, read_manifest
+    from runners.single import LOCK, MANIFEST, in_a_run, in_a_sweep, read_manifest
 
     try:
         usable_path(out)
@@ -1205,7 +1205,8 @@ def check_out(out: Path) -> None:
                          "runs only inside its own folder: remove the link, or choose another folder")
     m = read_manifest(out, sweep=True)
     own = set(m["created"]) | {MANIFEST} if m is not None else set()
-    foreign = sorted(p.name for p in out.iterdir() if p.name not in own and p.name not in SWEEP_FOLDERS)
+    foreign = sorted(p.name for p in out.iterdir() if p.name not in own and p.name not in SWEEP_FOLDERS
+                     and p.name != LOCK)  # (a sweep writing there: refused by its lock, by name)
     if foreign and not (out / "runs").is_dir():
         raise SweepError(f"--out {out} holds {', '.join(foreign[:5])}{' and more' if len(foreign) > 5 else ''} and "
                          "no earlier sweep (no runs/ folder): choose an empty folder, or the folder of the sweep to "
@@ -1248,13 +1249,13 @@ def record_tables(out: Path, written: bool, planned=()) -> None:
     lists the folder's top level as there before), given the names of the tables and figures just
     before they are written (``planned``), then, once written, listing the top-level names it
     created that are there (no planned name it did not write). :func:`check_out` lets a resume write only over those."""
-    from runners.single import MANIFEST, _write_json, read_manifest
+    from runners.single import LOCK, MANIFEST, _write_json, read_manifest
 
-    before = sorted(p.name for p in out.iterdir() if p.name != MANIFEST)
+    before = sorted(p.name for p in out.iterdir() if p.name not in (MANIFEST, LOCK))
     m = read_manifest(out, sweep=True) or {"sweep": 1, "preexisting": before, "created": []}
     m["created"] = sorted(set(m["created"]) | (set(planned) - set(m["preexisting"])))
     if written:  # (only what it did write: a name it planned and did not write is not claimed)
-        now = {p.name for p in out.iterdir()} - {MANIFEST, MANIFEST + ".tmp"}
+        now = {p.name for p in out.iterdir()} - {MANIFEST, MANIFEST + ".tmp", LOCK}
         m["created"] = sorted(now - set(m["preexisting"]))
     _write_json(out / MANIFEST, m)
 
@@ -1314,14 +1315,21 @@ def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]
     check_out(Path(out))
     jobs = plan(scenario_path, seeds, grid, controls, out, duration_s, tuple(overrides), allow_outside=allow_outside)
     created = make_out(Path(out))  # (only now: a sweep refused above leaves nothing)
-    check_resume(jobs, force=force)
-    remove_stale(out)
-    record_tables(Path(out), written=False)  # (what is there now is not the sweep's)
+    from runners.single import MANIFEST, lock_run_dir, unlock_run_dir
+
+    try:  # (one sweep at a time in a folder: a second one's --force would replace the first one's runs)
+        lock_run_dir(Path(out))
+    except ValueError as exc:
+        if created:
+            shutil.rmtree(out, ignore_errors=True)
+        raise SweepError(str(exc)) from None
     try:
+        check_resume(jobs, force=force)
+        remove_stale(out)
+        record_tables(Path(out), written=False)  # (what is there now is not the sweep's)
         return run_sweep(jobs, out, workers=workers, scheduler=scheduler, progress=progress, batch=batch)
     except SweepError:  # (a scheduler it cannot use: the folder it made for nothing goes again)
-        from runners.single import MANIFEST
-
+        unlock_run_dir(Path(out))
         if created and Path(out).is_dir() and {p.name for p in Path(out).iterdir()} <= {MANIFEST}:
             shutil.rmtree(out)
         raise
@@ -1331,6 +1339,8 @@ def study(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]
         _close_clusters()
         remove_stale(out)
         raise
+    finally:
+        unlock_run_dir(Path(out))
 
 
 def _close_clusters() -> None:

@@ -226,3 +226,15 @@ def test_api_takes_numpy_integers_as_seeds_and_workers(tmp_path):
     s = nrtraffic.sweep(CROSS4, np.arange(1, 2), duration_s=5, workers=np.int64(1), out=tmp_path / "s",
                         overrides={"outputs.warmup_s": 0})
     assert list(s.table["seed"]) == [1] and (s.table["status"] == "ok").all()
+
+
+def test_api_names_its_own_arguments_when_a_seed_is_given_twice(tmp_path):
+    """``seed=2`` with ``overrides={'scenario': {'seed': 3}}``: refused naming ``seed=`` and
+    ``overrides`` (it had named --seed and --set, flags the caller did not use)."""
+    from nrtraffic.scenario import ScenarioError
+
+    with pytest.raises(ScenarioError, match=re.escape("seed=2 and overrides scenario.seed=3 both give it")):
+        nrtraffic.run(CROSS4, seed=2, overrides={"scenario": {"seed": 3}}, out=tmp_path / "o")
+    with pytest.raises(ScenarioError, match=re.escape("duration_s=5 and overrides scenario.duration_s=9")):
+        nrtraffic.run(CROSS4, duration_s=5, overrides={"scenario.duration_s": 9}, out=tmp_path / "o")
+    assert not (tmp_path / "o").exists()

@@ -1742,7 +1742,7 @@ def test_a_folder_a_run_is_writing_is_refused_to_a_second_run(tmp_path, capsys):
     assert json.loads((out / "summary.json").read_text())["status"] == "failed"  # (stopped by the test)
     stale = tmp_path / "stale"
     stale.mkdir()
-    (stale / ".nrtraffic-running").write_text("999999999\n")  # (no such process)
+    (stale / ".nrtraffic-running").write_text("nrtraffic 999999999 5\n")  # (no such process)
     assert main(["run", str(CROSS4), "--duration", "30", "--set", "outputs.warmup_s=0", "--out", str(stale),
                  "--no-progress"]) == 0
     assert not (stale / ".nrtraffic-running").exists() and not (out / ".nrtraffic-running").exists()
@@ -1758,3 +1758,79 @@ def test_an_out_that_is_a_broken_link_or_a_loop_is_named_as_such(tmp_path, capsy
                      str(tmp_path / name), "--no-progress"]) == 2
         assert "which does not exist (or a loop of links)" in capsys.readouterr().err
     assert not (tmp_path / "gone").exists()
+
+
+def test_a_lock_file_that_is_no_runs_lock_is_never_removed_and_a_stale_one_is_taken_over(tmp_path, capsys):
+    """A file of the user's named like the lock (any other content, a link, a folder) is refused by
+    name and kept (it had been removed as a stale lock); a lock of a process id that does not exist
+    (a huge one had ended in an OverflowError traceback), or of a process id now another program's
+    (same id, another start), is taken over."""
+    import os
+
+    short = ["--duration", "30", "--set", "outputs.warmup_s=0", "--no-progress"]
+    notes = tmp_path / "notes.txt"
+    notes.write_text("mine\n")
+    cases = {"text": lambda p: p.write_text("my own notes\n"), "number": lambda p: p.write_text("1\n"),
+             "link": lambda p: p.symlink_to(notes), "folder": lambda p: p.mkdir()}
+    for name, make in cases.items():
+        out = tmp_path / name
+        out.mkdir()
+        make(out / ".nrtraffic-running")
+        assert main(["run", str(CROSS4), "--out", str(out), *short]) == 2, name
+        assert "which is not a run's lock" in capsys.readouterr().err
+        assert os.path.lexists(out / ".nrtraffic-running") and notes.read_text() == "mine\n"
+    for name, text in (("huge", "nrtraffic 99999999999 5"), ("reused", f"nrtraffic 1 not-its-start")):
+        out = tmp_path / name
+        out.mkdir()
+        (out / ".nrtraffic-running").write_text(text + "\n")
+        assert main(["run", str(CROSS4), "--out", str(out), *short]) == 0, (name, capsys.readouterr().err)
+        assert not (out / ".nrtraffic-running").exists()
+
+
+def test_a_sweep_folder_a_sweep_is_writing_is_refused_to_a_second_sweep(tmp_path, capsys):
+    """A second sweep into the folder of a sweep that still runs (--force too) is refused naming its
+    process (it had replaced the first one's run folders, which then failed)."""
+    out = tmp_path / "s"
+    cmd = [sys.executable, "-m", "runners.cli", "sweep", str(CROSS4), "--seeds", "1:3", "--duration", "600",
+           "--workers", "1", "--out", str(out), "--no-progress"]
+    first = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / ".nrtraffic-running").is_file() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        capsys.readouterr()
+        assert main(["sweep", str(CROSS4), "--seeds", "1:3", "--duration", "600", "--workers", "1", "--out", str(out),
+                     "--force", "--set", "demand.rate_veh_h=300", "--no-progress"]) == 2
+        assert f"is being written by another run (process {first.pid})" in capsys.readouterr().err
+    finally:
+        first.send_signal(signal.SIGINT)
+        first.communicate(timeout=180)
+    assert not (out / ".nrtraffic-running").exists()
+
+
+@pytest.mark.parametrize("given", ["~nosuchuser/x", "${HOME}/x", "o_${HOME}/x"])
+def test_an_out_that_sumo_would_read_elsewhere_is_refused(given, tmp_path, monkeypatch, capsys):
+    """``--out`` holding ``${NAME}``, or a leading ``~`` that is no home folder here: SUMO reads them
+    (an environment variable, a home folder) and had written its outputs there, outside --out,
+    over a file of the user's; refused with exit 2 before anything is written."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    assert main(["run", str(CROSS4), "--duration", "30", "--set", "outputs.warmup_s=0", "--out", given,
+                 "--no-progress"]) == 2
+    assert "SUMO reads ${NAME} in a file name as an environment variable" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_one_vehicle_id_in_two_route_files_names_both_files(tmp_path, capsys):
+    """The same vehicle id in two files of ``demand.sumo_routes``: both files are named (the message
+    had named the merged file, which is nobody's)."""
+    d = tmp_path / "sc"
+    d.mkdir()
+    shutil.copy(SCENARIOS / "cross4" / "net.net.xml", d / "net.net.xml")
+    for name in ("da", "db"):
+        (d / f"{name}.rou.xml").write_text('<routes><trip id="dup" depart="1" from="W_in" to="E_out"/></routes>\n')
+    (d / "scenario.toml").write_text('[scenario]\nname = "s"\nnetwork = "net.net.xml"\n[junction]\nid = "C"\n'
+                                     '[demand]\nsumo_routes = "da.rou.xml,db.rou.xml"\n')
+    assert main(["run", str(d / "scenario.toml"), "--duration", "30", "--set", "outputs.warmup_s=0", "--out",
+                 str(tmp_path / "o"), "--no-progress"]) == 2
+    assert "the vehicle id 'dup' is given in da.rou.xml and in db.rou.xml" in capsys.readouterr().err

@@ -86,11 +86,20 @@ def merged(paths: list[Path]) -> Path:
     if key in _ROUTED and _ROUTED[key].is_file():
         return _ROUTED[key]
     root = ET.Element("routes")
+    where: dict[tuple[str, str], str] = {}  # (tag kind, id) -> the file that gives it first
     for p in paths:
         try:
-            root.extend(list(ET.parse(p).getroot()))
+            elements = list(ET.parse(p).getroot())
         except (OSError, ET.ParseError) as exc:
             raise DemandFileError(f"demand.sumo_routes {p}: cannot be read as XML: {exc}") from None
+        for el in elements:  # (named here by its files: the merged file is nobody's)
+            kind = "vehicle" if el.tag in ("vehicle", "trip", "flow") else el.tag
+            key = (kind, el.get("id"))
+            if el.get("id") is not None and key in where:
+                raise DemandFileError(f"demand.sumo_routes: the {kind} id {el.get('id')!r} is given in {where[key]} and "
+                                      f"in {p.name}; give each its own id")
+            where.setdefault(key, p.name)
+        root.extend(elements)
     out = _scratch("merged.rou.xml")
     ET.ElementTree(root).write(out, encoding="utf-8", xml_declaration=True)
     _ROUTED[key] = out
