@@ -321,6 +321,36 @@ def _folder(text: str) -> Path:
     return Path(os.path.expanduser(text))
 
 
+class _ReaderMayGo:
+    """The command's stdout: when its reader has gone (a pipe closed early, ``| head -1``), what it
+    prints goes nowhere and the command ends with its own status; its result is its files, which
+    are written (it had ended with exit 1, "cannot write the run's files", over a run that was ok)."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def write(self, text):
+        try:
+            return self._stream.write(text)
+        except BrokenPipeError:
+            self._gone()
+            return len(text)
+
+    def flush(self):
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            self._gone()
+
+    def _gone(self):
+        devnull = os.open(os.devnull, os.O_WRONLY)  # (what is still buffered goes there too)
+        os.dup2(devnull, self._stream.fileno())
+        os.close(devnull)
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
 def main(argv: list[str] | None = None) -> int:
     """The ``nrtraffic`` command; returns its exit status. SIGTERM and Ctrl-C are handled from its
     first instruction (:mod:`runners.interrupts`; nothing heavy is imported before it): a run that
@@ -329,6 +359,8 @@ def main(argv: list[str] | None = None) -> int:
     exiting with that status, :func:`~runners.interrupts.settle`); called with ``argv`` (from
     Python) the caller's handlers are put back."""
     interrupts.install()
+    if argv is None and not isinstance(sys.stdout, _ReaderMayGo):
+        sys.stdout = _ReaderMayGo(sys.stdout)
     try:
         try:
             code = _main(argv)

@@ -1834,3 +1834,17 @@ def test_one_vehicle_id_in_two_route_files_names_both_files(tmp_path, capsys):
     assert main(["run", str(d / "scenario.toml"), "--duration", "30", "--set", "outputs.warmup_s=0", "--out",
                  str(tmp_path / "o"), "--no-progress"]) == 2
     assert "the vehicle id 'dup' is given in da.rou.xml and in db.rou.xml" in capsys.readouterr().err
+
+
+def test_a_run_whose_output_reader_has_gone_ends_with_its_own_status(tmp_path):
+    """``nrtraffic run ... | (exec 0<&-)``: the reader of stdout closes before the run prints its
+    figures. The run's files are its result: exit 0 with a summary that says ok (it had exited 1,
+    "cannot write the run's files: Broken pipe", over a run that was ok)."""
+    out = tmp_path / "r"
+    cmd = [sys.executable, "-m", "runners.cli", "run", str(CROSS4), "--duration", "30", "--set", "outputs.warmup_s=0",
+           "--out", str(out), "--no-progress"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc.stdout.close()  # (the reader goes at once)
+    err = proc.stderr.read()
+    assert proc.wait(timeout=300) == 0, err
+    assert "Broken pipe" not in err and json.loads((out / "summary.json").read_text())["status"] == "ok"
