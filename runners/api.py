@@ -375,14 +375,19 @@ def _path(value, name: str) -> Path:
 
 def one_source(overrides, seed, duration_s, api: bool = False) -> None:
     """Refuse (ScenarioError, exit 2) a seed or duration given both as a flag and as a ``--set``
-    of its scenario key: the flag wins, and the setting would be dropped without a word. ``api``:
+    of its scenario key (the flag wins, and the setting would be dropped without a word), and one
+    key set twice to different values (the last would win without a word). ``api``:
     named as the Python API's arguments (``seed=``, ``overrides``), not as flags."""
     from nrtraffic.scenario import ScenarioError
 
     given = {}
     for o in overrides:
         key, _, text = str(o).partition("=")
-        given[key.strip()] = text.strip()
+        key = key.strip()
+        if key in given and given[key] != text.strip():  # (the last had won without a word)
+            raise ScenarioError(f"{'overrides' if api else '--set'} {key} is given twice ({given[key]} and "
+                                f"{text.strip()}): give it once")
+        given[key] = text.strip()
     for value, flag, names in ((seed, "--seed", ("scenario.seed", "general.seed")),
                                (duration_s, "--duration", ("scenario.duration_s", "general.duration_s"))):
         for name in names:

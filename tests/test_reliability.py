@@ -1848,3 +1848,17 @@ def test_a_run_whose_output_reader_has_gone_ends_with_its_own_status(tmp_path):
     err = proc.stderr.read()
     assert proc.wait(timeout=300) == 0, err
     assert "Broken pipe" not in err and json.loads((out / "summary.json").read_text())["status"] == "ok"
+
+
+def test_one_setting_given_twice_with_two_values_is_refused(tmp_path, capsys):
+    """``--set demand.rate_veh_h=100 --set demand.rate_veh_h=900``: refused naming both values (the
+    last had won without a word, where a flag and a --set of one key are refused); the same value
+    twice is taken."""
+    short = ["--duration", "30", "--set", "outputs.warmup_s=0", "--no-progress"]
+    for cmd in (["run", str(CROSS4)], ["sweep", str(CROSS4), "--seeds", "1"]):
+        assert main([*cmd, *short, "--set", "demand.rate_veh_h=100", "--set", "demand.rate_veh_h=900",
+                     "--out", str(tmp_path / "o")]) == 2
+        assert "--set demand.rate_veh_h is given twice (100 and 900)" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+    assert main(["run", str(CROSS4), *short, "--set", "demand.rate_veh_h=100", "--set", "demand.rate_veh_h=100",
+                 "--out", str(tmp_path / "o")]) == 0
