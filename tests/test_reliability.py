@@ -574,6 +574,7 @@ _ROUTE_CASES = {
                            '</routeDistribution><vehicle id="v" route="rd" depart="1"/>', "is a <routeDistribution>"),
     "fractional_number": ('<flow id="x" route="r" begin="0" end="100" number="2.5"/><route id="r" edges="W_in E_out"/>',
                           "number='2.5' is not a whole number of vehicles"),
+    "trip_nan_depart": ('<trip id="a" from="N_in" to="S_out" depart="nan"/>', "depart='nan' is not finite"),
     "flow_negative_begin": ('<flow id="x" route="r" begin="-10" end="30" vehsPerHour="600"/><route id="r" '
                             'edges="W_in E_out"/>', "begin=-10 is negative"),
     "end_before_begin": ('<flow id="x" route="r" begin="50" end="10" period="2"/><route id="r" edges="W_in E_out"/>'

@@ -160,6 +160,9 @@ def routed(path: Path, net_path: Path) -> Path:
         raise DemandFileError(f"demand.sumo_routes {path}: cannot be read as XML: {exc}") from None
     if not _unrouted(root):
         return path
+    for el in root:  # (times checked here, as the run checks them: duarouter named a NaN "negative")
+        if el.tag in ("vehicle", "trip") and el.get("depart") is not None:
+            _num(el, "depart", f"demand.sumo_routes {path.name}: <{el.tag} id={el.get('id')!r}>")
     for el in root.iter("flow"):  # (duarouter writes every vehicle of a flow it routes: bounded first)
         if el.get("period", "").strip().startswith("exp("):
             _exp_rate(el, f"demand.sumo_routes {path.name}: <flow id={el.get('id')!r}>")
