@@ -1545,7 +1545,7 @@ def test_a_flag_and_a_set_of_the_same_setting_are_refused(tmp_path, capsys):
                               "--duration 5.0 and --set scenario.duration_s=10")):
             assert main([*cmd, *flags, "--out", str(tmp_path / "o"), "--no-progress"]) == 2
             assert named in capsys.readouterr().err and not (tmp_path / "o").exists()
-    with pytest.raises(ScenarioError, match="--seed 3 and --set scenario.seed=4 both give it"):
+    with pytest.raises(ScenarioError, match="seed=3 and overrides scenario.seed=4 both give it"):  # (its own names)
         nrtraffic.run(CROSS4, seed=3, overrides={"scenario.seed": 4}, out=tmp_path / "a")
     with pytest.raises(ScenarioError, match="allow_outside='no': give True or False"):
         nrtraffic.run(CROSS4, duration_s=5, allow_outside="no", out=tmp_path / "b")
