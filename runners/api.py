@@ -301,8 +301,9 @@ def _toml(v) -> str:
 
 
 def settings(overrides) -> list[str]:
-    """``overrides`` as ``section.key=value`` texts: a mapping ``{"demand.rate_veh_h": 600}``
-    (values as Python numbers, strings, bools, lists, dicts) or texts as ``--set`` takes them."""
+    """``overrides`` as ``section.key=value`` texts: a mapping ``{"demand.rate_veh_h": 600}`` or
+    ``{"demand": {"rate_veh_h": 600}}`` (values as Python numbers, strings, bools, lists, dicts),
+    pairs ``[("demand.rate_veh_h", 600)]``, or texts as ``--set`` takes them."""
     if overrides is None:
         return []
     if isinstance(overrides, str):
@@ -528,10 +529,12 @@ def sweep(scenario: str | Path, seeds: Iterable[int] | str, *, grid: Mapping[str
     if scheduler is not None and not isinstance(scheduler, str):
         raise sweep_mod.SweepError(f"scheduler={scheduler!r}: give a Dask scheduler's address as text, e.g. "
                                    "'tcp://10.0.0.5:8786'")
-    if not isinstance(baselines, str) and (not isinstance(baselines, Iterable)
-                                           or not all(isinstance(b, str) for b in baselines)):
-        raise sweep_mod.SweepError(f"baselines={baselines!r}: give SUMO's controls by name, e.g. ['actuated', "
-                                   "'allway_stop'] or 'actuated,allway_stop'")
+    if not isinstance(baselines, str):
+        listed = list(baselines) if isinstance(baselines, Iterable) else None  # (a generator is read once)
+        if listed is None or not all(isinstance(b, str) for b in listed):
+            raise sweep_mod.SweepError(f"baselines={baselines!r}: give SUMO's controls by name, e.g. ['actuated', "
+                                       "'allway_stop'] or 'actuated,allway_stop'")
+        baselines = listed
     points = []  # (not through the text of --grid: a list value, or a string with a comma, is one value)
     for k, values in (grid or {}).items():
         values = [values] if isinstance(values, str) or not isinstance(values, Iterable) else list(values)

@@ -238,3 +238,15 @@ def test_api_names_its_own_arguments_when_a_seed_is_given_twice(tmp_path):
     with pytest.raises(ScenarioError, match=re.escape("duration_s=5 and overrides scenario.duration_s=9")):
         nrtraffic.run(CROSS4, duration_s=5, overrides={"scenario.duration_s": 9}, out=tmp_path / "o")
     assert not (tmp_path / "o").exists()
+
+
+def test_api_sweep_takes_its_baselines_from_a_generator(tmp_path, monkeypatch):
+    """``baselines=(b for b in ["priority"])``: the generator is read once, for its check and its
+    controls alike (a check that read it first had left no baseline to run)."""
+    from runners import sweep as sweep_mod
+
+    seen = {}
+    monkeypatch.setattr(sweep_mod, "study", lambda *a, **kw: seen.setdefault("controls", a[3]))
+    monkeypatch.setattr("runners.api.Sweep", lambda out: None)
+    nrtraffic.sweep(CROSS4, [1], baselines=(b for b in ["priority"]), duration_s=5, out=tmp_path / "s")
+    assert seen["controls"] == ["nrtraffic", "priority"]
