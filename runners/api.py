@@ -119,23 +119,20 @@ def claim(out: Path, sc, seed, duration, control: str, force: bool) -> list[Path
     """Check the scenario against its network and build its demand (exit 2 on an error, before
     anything is written), then make ``out`` ready for the run. Returns the folders made for it
     (for :func:`give_up`)."""
-    from runners.single import check, check_demand, claim_run_dir, lock_run_dir, unlock_run_dir
+    from runners.single import check, check_demand, claim_run_dir
 
     check(sc)
     check_demand(sc, seed, duration)
     new = [p for p in (Path(out).absolute(), *Path(out).absolute().parents) if not os.path.lexists(p)]
     writable_dir(out)
     try:
-        lock_run_dir(out)  # (before anything of an earlier run there is removed: another run may be writing it)
-        claim_run_dir(out, sc, seed, duration, control, force)
+        claim_run_dir(out, sc, seed, duration, control, force)  # (locked for the run: refused() frees it)
     except ValueError as exc:
-        unlock_run_dir(out)
         for p in new:  # (the folders made for the refused run go again)
             with contextlib.suppress(OSError):
                 p.rmdir()
         raise OutputError(str(exc)) from None
     except OSError as exc:
-        unlock_run_dir(out)
         raise OutputError(f"--out {out}: cannot clear the earlier run: {exc}") from None
     return new
 

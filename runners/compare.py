@@ -34,12 +34,12 @@ def main(args) -> int:
     directories cannot be compared or the output folder cannot be used."""
     from nrtraffic.compare import CompareError, compare, console, write
     from runners.api import OutputError, slug, writable_dir
-    from runners.single import in_a_run, in_a_sweep, read_manifest
+    from runners.single import in_a_run, in_a_sweep, is_run_dir
 
     try:
         c = compare(args.run_dirs)
         out = args.out or Path("runs") / f"{slug(c.scenario)}-compare"
-        inside = Path(out) if (Path(out) / "summary.json").is_file() and read_manifest(Path(out)) else in_a_run(out)
+        inside = Path(out) if is_run_dir(out) else in_a_run(out)
         if inside is not None:  # (its files would be taken for the run's own)
             where = "a run directory" if inside == Path(out) else f"in the run directory {inside}"
             raise OutputError(f"--out {out}: {where}; write the comparison into another folder")

@@ -8,7 +8,6 @@ of the prediction horizon T, which the paper does not state.
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import pandas as pd
@@ -80,13 +79,13 @@ def claim_out(out: Path, experiment: str) -> None:
     output of the same command (its manifest lists what it wrote), with no file of the user's in its
     run directories. Its manifest then lists, before anything is written, what it will write."""
     from runners.api import OutputError, usable_path, writable_dir
-    from runners.single import MANIFEST, in_a_run, in_a_sweep, read_manifest
+    from runners.single import MANIFEST, in_a_run, in_a_sweep, normal, read_manifest
     from runners.sweep import foreign_files, record_tables
 
     out = Path(out)
     usable_path(out)
     owner = in_a_sweep(out)
-    if owner is not None and (owner != Path(os.path.normpath(out.absolute())) or (out / "runs").exists()):
+    if owner is not None and (owner != normal(out) or (out / "runs").exists()):
         raise OutputError(f"--out {out} lies in the sweep folder {owner}: choose a folder outside it")
     inside = in_a_run(out)
     if inside is not None:

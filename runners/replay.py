@@ -349,11 +349,9 @@ def replay(run_dir: Path, out: Path | None = None, rtol: float = RTOL, atol: flo
             raise ReplayError(f"--out {out} is not empty: choose another folder{replace}")
         control = f"sumo_{recorded['junction_type']}" if recorded.get("junction_type") else "nrtraffic"
         try:
-            if Path(out).is_dir():  # (before an earlier run there is removed: another may be writing it)
-                lock_run_dir(Path(out))
-            claim_run_dir(Path(out), sc, None, None, control, force)
+            claim_run_dir(Path(out), sc, None, None, control, force)  # (an existing folder locked for the run)
             Path(out).mkdir(parents=True, exist_ok=True)
-            lock_run_dir(Path(out))
+            lock_run_dir(Path(out))  # (one made here; where claim_run_dir locked it, the same lock)
         except ValueError as exc:
             unlock_run_dir(Path(out))
             raise ReplayError(str(exc)) from None

@@ -401,7 +401,8 @@ def claim_run_dir(out: Path, sc: scenario_mod.Scenario, seed: int | None, durati
     :data:`MANIFEST`) is removed first, so that nothing of it stays beside the new one, and nothing
     else is: a non-empty folder without a manifest (the user's own files, or a run of an earlier
     version) is refused even with ``force``. A folder in a sweep's folder is the sweep's, and refused
-    (:func:`in_a_sweep`)."""
+    (:func:`in_a_sweep`). An existing ``out`` is locked for the run (:func:`lock_run_dir`), also
+    against a run that is writing it now; a refusal leaves it unlocked."""
     out = Path(out)
     owner = in_a_sweep(out)
     if owner is not None:
@@ -411,33 +412,40 @@ def claim_run_dir(out: Path, sc: scenario_mod.Scenario, seed: int | None, durati
     if inside is not None:
         raise ValueError(f"--out {out} lies in the run directory {inside}: its files would be taken for that run's "
                          "(and a --force on it would remove them); choose a folder outside it")
-    if not out.is_dir() or not any(p.name != LOCK for p in out.iterdir()):
+    if not out.is_dir():
         return
-    same = False
+    lock_run_dir(out)  # (before anything of an earlier run there goes: held until the run ends, unlock_run_dir)
     try:
-        s = json.loads((out / "summary.json").read_text())
-        same = (s.get("status") == "ok" and s.get("control") == control
-                and (out / "scenario.resolved.toml").read_text() == resolved_text(sc, seed, duration_s))
-    except (OSError, ValueError):
-        pass
-    m = read_manifest(out)
-    if not (same or force) and m is not None:
-        raise ValueError(f"--out {out} is not empty and is not a finished run of this configuration: "
-                         "choose another folder, or --force to replace the run in it")
-    if m is None:
-        raise ValueError(f"--out {out} is not empty and holds no run's {MANIFEST} (files of your own, or a run of "
-                         "an earlier version): a run is written only into an empty folder or over a run that "
-                         "recorded its files there (--force removes those alone); choose another folder, or empty "
-                         "this one yourself")
-    # what the new run writes must not meet a file that no earlier run there created (the user's)
-    ours = set(m["created"])
-    # (every name a run may write or read: a stray fcd.xml would be read for its figures)
-    clash = sorted(n for n in {*RUN_FILES, *run_file_names(sc)} if n != "sumo" and (out / n).exists()
-                   and n not in ours)
-    if clash:
-        raise ValueError(f"--out {out} holds {', '.join(clash)}, which no earlier run there created (files of your "
-                         "own?): a run would write over them; choose another folder")
-    remove_run_files(out, keep=sc.network_path)
+        if not any(p.name != LOCK for p in out.iterdir()):
+            return
+        same = False
+        try:
+            s = json.loads((out / "summary.json").read_text())
+            same = (s.get("status") == "ok" and s.get("control") == control
+                    and (out / "scenario.resolved.toml").read_text() == resolved_text(sc, seed, duration_s))
+        except (OSError, ValueError):
+            pass
+        m = read_manifest(out)
+        if not (same or force) and m is not None:
+            raise ValueError(f"--out {out} is not empty and is not a finished run of this configuration: "
+                             "choose another folder, or --force to replace the run in it")
+        if m is None:
+            raise ValueError(f"--out {out} is not empty and holds no run's {MANIFEST} (files of your own, or a run of "
+                             "an earlier version): a run is written only into an empty folder or over a run that "
+                             "recorded its files there (--force removes those alone); choose another folder, or empty "
+                             "this one yourself")
+        # what the new run writes must not meet a file that no earlier run there created (the user's)
+        ours = set(m["created"])
+        # (every name a run may write or read: a stray fcd.xml would be read for its figures)
+        clash = sorted(n for n in {*RUN_FILES, *run_file_names(sc)} if n != "sumo" and (out / n).exists()
+                       and n not in ours)
+        if clash:
+            raise ValueError(f"--out {out} holds {', '.join(clash)}, which no earlier run there created (files of your "
+                             "own?): a run would write over them; choose another folder")
+        remove_run_files(out, keep=sc.network_path)
+    except BaseException:
+        unlock_run_dir(out)
+        raise
 
 
 def in_a_sweep(path: Path) -> Path | None:
@@ -446,7 +454,7 @@ def in_a_sweep(path: Path) -> Path | None:
     wrote), that sweep's folder (above its ``runs/``); None."""
     from runners.sweep import FINGERPRINT
 
-    for p in dict.fromkeys((Path(os.path.normpath(Path(path).absolute())), Path(path).resolve())):  # (as given, and through its links)
+    for p in _places(path):
         for q in (p, *p.parents):
             if read_manifest(q, sweep=True) is not None:
                 return q
@@ -456,16 +464,32 @@ def in_a_sweep(path: Path) -> Path | None:
 
 
 def in_a_run(path: Path) -> Path | None:
-    """The run directory (a ``summary.json`` beside a run's manifest, or beside the
-    ``scenario.resolved.toml`` of a run of an earlier version) that ``path`` lies in, below it (as
-    given, or through its links); None. Whatever is written there would be taken for that run's
+    """The run directory (:func:`is_run_dir`) that ``path`` lies in, below it (as given, or through
+    its links); None. Whatever is written there would be taken for that run's
     files, and a ``--force`` on it would remove them."""
-    for p in dict.fromkeys((Path(os.path.normpath(Path(path).absolute())), Path(path).resolve())):
+    for p in _places(path):
         for q in p.parents:
-            if (q / "summary.json").is_file() and (read_manifest(q) is not None
-                                                   or (q / "scenario.resolved.toml").is_file()):
+            if is_run_dir(q):
                 return q
     return None
+
+
+def is_run_dir(path: Path) -> bool:
+    """Whether ``path`` is a run directory: a ``summary.json`` beside a run's manifest, or beside the
+    ``scenario.resolved.toml`` of a run of an earlier version."""
+    path = Path(path)
+    return (path / "summary.json").is_file() and (read_manifest(path) is not None
+                                                  or (path / "scenario.resolved.toml").is_file())
+
+
+def normal(path: Path) -> Path:
+    """``path`` made absolute, its ``..`` taken lexically (not through links: :func:`_places`)."""
+    return Path(os.path.normpath(Path(path).absolute()))
+
+
+def _places(path: Path) -> tuple[Path, ...]:
+    """Where ``path`` is: as given (:func:`normal`), and through its links (once where they agree)."""
+    return tuple(dict.fromkeys((normal(path), Path(path).resolve())))
 
 
 def remove_run_files(out: Path, keep: Path | None = None) -> None:

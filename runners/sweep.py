@@ -1185,13 +1185,13 @@ def check_out(out: Path) -> None:
     sweep recorded in its manifest as written (:func:`record_tables`), so that a sweep's tables and
     report never replace a user's files of the same name."""
     from runners.api import OutputError, usable_path
-    from runners.single import LOCK, MANIFEST, in_a_run, in_a_sweep, read_manifest
+    from runners.single import LOCK, MANIFEST, in_a_run, in_a_sweep, normal, read_manifest
 
     try:
         usable_path(out)
     except OutputError as exc:
         raise SweepError(str(exc)) from None
-    owner = in_a_sweep(Path(os.path.normpath(out.absolute())).parent)
+    owner = in_a_sweep(normal(out).parent)
     if owner is not None:
         raise SweepError(f"--out {out} lies in the sweep folder {owner}: choose a folder outside it")
     inside = in_a_run(out)
