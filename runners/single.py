@@ -110,6 +110,10 @@ def _check_depart_speeds(sc: scenario_mod.Scenario, demand, departures) -> None:
     limit: dict[str, float] = {}
     listed = {v.id for v in sc.vehicles}
     firsts: dict[str, str] = {}  # route -> its first edge (a route is shared by many vehicles)
+    def where(vid: str) -> str:  # (the key that sets a departure's speed, named only in a refusal)
+        return (f"vehicles.{vid}.depart_speed_mps" if vid in listed else
+                "its departSpeed in demand.sumo_routes" if sc.demand.sumo_routes else "demand.entry_speed_mps")
+
     stops: dict[tuple, tuple[float, str] | None] = {}
     dt = sc.sumo.step_length_s
     length = sc.vehicle.params().length
@@ -121,12 +125,10 @@ def _check_depart_speeds(sc: scenario_mod.Scenario, demand, departures) -> None:
             raise scenario_mod.ScenarioError(
                 f"vehicles.{vid}.depart_pos_m = {pos:g} m lies beyond its first edge {first} "
                 f"({net.getEdge(first).getLength():.1f} m long): give a position on it")
-        where = (f"vehicles.{vid}.depart_speed_mps" if vid in listed else
-                 "its departSpeed in demand.sumo_routes" if sc.demand.sumo_routes else "demand.entry_speed_mps")
         if speed > limit[first] + 1e-9:
             raise scenario_mod.ScenarioError(
                 f"vehicle {vid} departs at {speed:g} m/s on edge {first}, whose speed limit is {limit[first]:g} m/s "
-                f"(SUMO refuses it): lower {where}")
+                f"(SUMO refuses it): lower {where(vid)}")
         human = kind == "human"
         decel = sc.human.decel_mps2 if human else VehicleType.decel_mps2
         key = (route, pos, speed, human)
@@ -138,7 +140,7 @@ def _check_depart_speeds(sc: scenario_mod.Scenario, demand, departures) -> None:
             # next step on, before a link where it has no priority; else SUMO discards the vehicle)
             need = speed * speed / (2 * (room[0] - speed * dt)) if room[0] > speed * dt else float("inf")
             fix = (f"raise human.decel_mps2 (a driver's comfortable deceleration) to at least {need:.2f} m/s^2, or "
-                   f"lower {where}" if human else f"lower {where}, or start its route further upstream")
+                   f"lower {where(vid)}" if human else f"lower {where(vid)}, or start its route further upstream")
             raise scenario_mod.ScenarioError(
                 f"vehicle {vid} departs at {speed:g} m/s and, braking at {decel:g} m/s^2, could not stop in the "
                 f"{room[0]:.1f} m before the junction {room[1]} where it must give way (SUMO would discard it: "

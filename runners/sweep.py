@@ -238,12 +238,13 @@ def plan(scenario_path: Path, seeds: list[int], grid: list[tuple[str, list[str]]
         try:
             sc = scenario.load(scenario_path, list(ov), allow_outside=allow_outside)
             check(sc)
-            check_demand(sc, seeds[0], duration_s)
-            for seed in seeds[1:]:  # (random arrivals of another seed may give no vehicle, or a speed too high)
+            for seed in seeds:  # (every seed's: its random arrivals may give no vehicle, or a speed too high)
                 try:
                     check_demand(sc, seed, duration_s)
-                except scenario.ScenarioError as exc:
-                    raise scenario.ScenarioError(str(exc) if f"seed {seed}" in str(exc) else f"seed {seed}: {exc}") from None
+                except scenario.ScenarioError as exc:  # (the seed named where another seed's demand was right)
+                    if seed == seeds[0] or f"seed {seed}" in str(exc):
+                        raise
+                    raise scenario.ScenarioError(f"seed {seed}: {exc}") from None
         except (scenario.ScenarioError, NetworkError) as exc:
             if not point:
                 raise

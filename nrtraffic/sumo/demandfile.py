@@ -348,6 +348,7 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
             raise DemandFileError(f"{where}: end={el.get('end')} is before begin={el.get('begin')}")
         own_end = _num(el, "end", where, FLOW_END_S)  # (SUMO's own end where it gives none: always finite)
         end = min(own_end, end_s)
+        # (SUMO spaces a flow's departures over its own end; a flow of a number without one, over the run's)
         span = (own_end if el.get("end") is not None or el.get("number") is None else end) - begin
         size = _flow_size(el, begin + span)
         if size > 0 and (span <= 0 or size / span * 3600.0 > MAX_FLOW_RATE_VEH_H):
@@ -364,9 +365,7 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
             if n > MAX_FLOW_VEHICLES:
                 raise DemandFileError(f"{where}: number={n} is more than the {MAX_FLOW_VEHICLES} vehicles one flow may "
                                       "have")
-            # (SUMO spaces them over the flow's own end where it has one, else over the run's: the run
-            # then takes those that depart before it ends)
-            span = (own_end if el.get("end") is not None else end) - begin
+            # (spaced over span, above; the run takes those that depart before it ends)
             times = [t for t in (begin + np.arange(n) * (span / n)).tolist() if t < end] if n > 0 else []
         elif el.get("period", "").startswith("exp("):
             rate = _exp_rate(el, where)
