@@ -136,13 +136,9 @@ def schema_text() -> str:
     return json.dumps(json_schema(), indent=1, default=str) + "\n"
 
 
-def _range(p: dict) -> str:
-    """A key's range as an interval, ``(`` or ``)`` at a bound it may not take."""
-    lo = p.get("minimum", p.get("exclusiveMinimum"))
-    hi = p.get("maximum", p.get("exclusiveMaximum"))
-    if lo is None:
-        return ""
-    return f"{'(' if 'exclusiveMinimum' in p else '['}{lo:g}, {hi:g}{')' if 'exclusiveMaximum' in p else ']'}"
+def _range(section: str, key: str) -> str:
+    """A key's range as :func:`nrtraffic.scenario.range_text` gives it ("" where it has none)."""
+    return S.range_text(section, key) if key in S.RANGES.get(section, {}) else ""
 
 
 def markdown_reference() -> str:
@@ -163,7 +159,7 @@ def markdown_reference() -> str:
             default = json.dumps(p["default"], default=str) if "default" in p else ""
             if typ == "array" and "properties" in p.get("items", {}):
                 typ = f"array of tables (`[[{name}.{key}]]`, below)"
-            out.append(f"| `{key}` | {typ} | {default} | {_range(p)} | {p.get('description', '').replace('|', '/')} |")
+            out.append(f"| `{key}` | {typ} | {default} | {_range(name, key)} | {p.get('description', '').replace('|', '/')} |")
         out.append("")
         for key, p in table["properties"].items():
             sub = p.get("items", {})
@@ -172,7 +168,7 @@ def markdown_reference() -> str:
                         "| key | type | default | range | meaning |", "|---|---|---|---|---|"]
                 for k, q in sub["properties"].items():
                     default = json.dumps(q["default"], default=str) if "default" in q else ""
-                    out.append(f"| `{k}` | {q.get('type', '')} | {default} | {_range(q)} | "
+                    out.append(f"| `{k}` | {q.get('type', '')} | {default} | {_range(f'{name}.{key}', k)} | "
                                f"{q.get('description', '').replace('|', '/')} |")
                 out.append("")
     return "\n".join(out)
