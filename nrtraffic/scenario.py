@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -610,7 +609,7 @@ def _coerce(section: str, key: str, typ, value):
 def _missing(path: Path) -> str:
     """Why ``path`` is no file to read: "not found", "is a folder", or "is not a regular file" (a
     device, a pipe or a socket, which would be read for ever or not at all)."""
-    if not os.path.lexists(path) or not path.exists():
+    if not path.exists():  # (a link to nowhere too)
         return "not found"
     return "is a folder, not a file" if path.is_dir() else "is not a regular file (a device, pipe or socket)"
 

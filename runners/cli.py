@@ -469,7 +469,8 @@ def _main(argv: list[str] | None) -> int:
             else:
                 from runners.api import writable_file, write_file
 
-                write_file(writable_file(args.write, own=('{\n "$schema"', "# Scenario file keys")), text)
+                # (an earlier output of the command begins as this one does: schema or key reference)
+                write_file(writable_file(args.write, own=(text[:30],)), text)
             return 0
     except (ScenarioError, NetworkError) as exc:
         print(f"nrtraffic: scenario error: {exc}", file=sys.stderr)
