@@ -194,12 +194,15 @@ def test_a_waiting_crossing_starts_as_soon_as_the_one_before_it_has_shrunk():
     """A human driver's crossing reserved behind another's occupancy of their shared area starts
     sooner once that occupancy has shrunk (as it does while the other drives across faster than
     its slowest): at the closed-form first free time, never before ``t_min``; the margin between
-    two human drivers is their own, between a human driver and a controlled vehicle the
-    coordinator's."""
+    two human drivers is their own, between a human driver and a controlled vehicle theirs and the
+    controlled vehicle's lateness allowance."""
     c = _coordinator()
     c.human_margin_s = 0.2
     assert c.margin_between(True, True) == 0.2
-    assert c.margin_between(True, False) == c.margin_between(False, True) == c.margin_between(False, False) == 1.0
+    # a human driver and a controlled vehicle: the humans' margin and the controlled vehicle's own
+    # lateness allowance, half the coordinator's margin (1 s here)
+    assert c.margin_between(True, False) == c.margin_between(False, True) == pytest.approx(0.2 + 0.5)
+    assert c.margin_between(False, False) == 1.0
     bounds = CrossingBounds(1.3, 2.6, 10.0, 14.0, 0.1)
     off_b, mw_b, ew_b, v_b = human_crossing(bounds, {"a": (5.0, 12.0)}, 0.0, 30.0)
     first = c.reserve_crossing("h_b", "lane_b", "b", 10.0, off_b, mw_b, ew_b, v_b, driven_by_sumo=True)
@@ -256,6 +259,14 @@ def mixed_run(tmp_path_factory):
     from nrtraffic.junction import yielding
 
     put_back = yielding.restore
+    replan = yielding.replan_behind
+    gave_way = []  # (each time controlled vehicles gave way to a crossing from rest)
+
+    def record_replan(st, junction, reserve_first):
+        done = replan(st, junction, reserve_first)
+        if done:
+            gave_way.append(reserve_first.__name__)
+        return done
 
     def record_restore(coord, saved):  # (a crossing reserved again for nothing: the one before holds)
         put_back(coord, saved)
@@ -266,12 +277,15 @@ def mixed_run(tmp_path_factory):
     Coordinator.reserve_crossing = record
     Coordinator.advance = record_advance
     yielding.restore = record_restore
+    yielding.replan_behind = record_replan
     try:
         res = Engine(sc, out, seed=2, duration_s=300.0).run()
     finally:
         Coordinator.reserve_crossing = original
         Coordinator.advance = advance
         yielding.restore = put_back
+        yielding.replan_behind = replan
+    res.gave_way = gave_way
     return res, sc, reserved
 
 
@@ -316,3 +330,29 @@ def test_controlled_vehicles_that_gave_way_keep_their_new_plans(mixed_run):
     moved = v[(v["driver"] == "automated") & (v["replans"] > 0) & v["t_merge_actual_s"].notna()]
     assert len(moved) > 5
     assert ((moved["t_merge_actual_s"] - moved["t_merge_planned_s"]).abs() < 0.3).all()
+
+
+def test_controlled_vehicles_enter_their_merging_zone_within_their_lateness_allowance(mixed_run):
+    """The margin between a human driver's and a controlled vehicle's occupancy is the humans'
+    margin plus the controlled vehicle's lateness allowance only (Coordinator.margin_between):
+    that rests on every controlled vehicle entering its merging zone never early and no later
+    than the allowance after its last plan, measured here from where the run saw it enter."""
+    res, sc, _ = mixed_run
+    v = res.vehicles
+    ctl = v[(v["driver"] == "automated") & v["t_merge_actual_s"].notna()]
+    late = ctl["t_merge_actual_s"] - ctl["t_merge_planned_s"]
+    assert len(ctl) > 20
+    assert late.min() >= -sc.sumo.step_length_s and late.max() <= sc.coordinator.late_tolerance_s
+
+
+def test_controlled_vehicles_give_way_a_bounded_number_of_times(mixed_run):
+    """Controlled vehicles far out were planned again to let crossings from rest start sooner
+    (nrtraffic.junction.yielding), and no controlled vehicle gave way more than MAX_REPLANS times
+    (none waits without end behind the crossings that come after it)."""
+    from nrtraffic.junction.yielding import MAX_REPLANS
+
+    res, _, _ = mixed_run
+    assert len(res.gave_way) > 2
+    v = res.vehicles
+    assert (v.loc[v["driver"] == "automated", "replans"] <= MAX_REPLANS).all()
+    assert (v.loc[v["replans"] > 0, "driver"] == "automated").all()

@@ -47,7 +47,7 @@ class LateGuard:
     def __init__(self, st, admission) -> None:
         self.st, self.admission = st, admission
         sc = st.sc
-        self.tol_s = 0.5 * sc.coordinator.conflict_margin_s
+        self.tol_s = sc.coordinator.late_tolerance_s
         self.a, self.v_max = sc.planning.u_max_mps2, sc.planning.v_max_mps
         self.brake = sc.barriers.max_braking_mps2
         self.gated: dict[str, float] = {}  # late vehicle -> arc length [m] its centre of gravity stops at

@@ -129,6 +129,13 @@ class CoordinatorSettings:
     max_passed: int = 3
     max_wait_s: float = 0.0
 
+    @property
+    def late_tolerance_s(self) -> float:
+        """How late [s] past its planned merge time a controlled vehicle may still enter its
+        merging zone: half the conflict margin (:mod:`nrtraffic.junction.late` stops a later one
+        at the zone's entry). Two controlled vehicles' margin covers both their allowances."""
+        return 0.5 * self.conflict_margin_s
+
     # the values each string setting takes (also the scenario file's JSON Schema)
     CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {
         "earliest": ("entry_speed", "max_speed"), "terminal_speed": ("free", "fixed"), "qp_solver": ("daqp", "osqp"),
@@ -432,13 +439,22 @@ class Coordinator:
         return t_m, blocker
 
     def margin_between(self, a_human: bool, b_human: bool) -> float:
-        """The margin [s] between two occupancies of a conflict area: ``human_margin_s`` between
-        two human drivers' reserved crossings, whose bounds already hold every motion their driver
-        model allows; ``coordinator.conflict_margin_s`` where one is a controlled vehicle's (it is
-        bounded by no driver model)."""
-        if a_human and b_human and self.human_margin_s is not None:
+        """The margin [s] between two occupancies of a conflict area.
+
+        - Two human drivers' reserved crossings: ``human_margin_s``. Their bounds already hold
+          every motion their driver model allows, with a step to spare.
+        - A human driver's and a controlled vehicle's: ``human_margin_s`` plus the controlled
+          vehicle's own lateness allowance (:attr:`CoordinatorSettings.late_tolerance_s`, half the
+          conflict margin). A controlled vehicle is never early: it tracks its plan to centimetres.
+          It enters its merging zone no later than that allowance after its plan, or is stopped at
+          the zone's entry (:mod:`nrtraffic.junction.late`). So only its lateness is not bounded
+          by the human's bounds.
+        - Two controlled vehicles: ``coordinator.conflict_margin_s``, which covers the lateness of both."""
+        if self.human_margin_s is None or not (a_human or b_human):
+            return self.settings.conflict_margin_s
+        if a_human and b_human:
             return self.human_margin_s
-        return self.settings.conflict_margin_s
+        return self.human_margin_s + self.settings.late_tolerance_s
 
     def advance(self, vehicle_id: str, t_min: float) -> Assignment | None:
         """Move the reserved crossing of ``vehicle_id`` (:meth:`reserve_crossing`), not started yet,
