@@ -204,8 +204,8 @@ class Engine:
             self.admission = Admission(st, {vid: (mv, t, speed) for vid, mv, t, speed, *_ in departures},
                                        {v[0] for v in departures if v[5] == "human"},
                                        {v.id: v for v in self.sc.vehicles})
-            self.late = LateGuard(st, self.admission)
             st.mixed = bool(self.admission.human_ids) and self.control
+            self.late = LateGuard(st, self.admission)
             copy = sdir / self.network_path.name  # the run directory's own copy, where there is one
             write_sumocfg(sdir / "run.sumocfg", copy if copy.is_file() else self.network_path, routes,
                           self.sc.sumo.step_length_s, self.sc.general.begin_s)

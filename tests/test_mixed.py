@@ -200,8 +200,10 @@ def test_a_waiting_crossing_starts_as_soon_as_the_one_before_it_has_shrunk():
     c.human_margin_s = 0.2
     assert c.margin_between(True, True) == 0.2
     # a human driver and a controlled vehicle: the humans' margin and the controlled vehicle's own
-    # lateness allowance, half the coordinator's margin (1 s here)
-    assert c.margin_between(True, False) == c.margin_between(False, True) == pytest.approx(0.2 + 0.5)
+    # lateness allowance where human drivers take part (0.1 s: half the coordinator's margin, 1 s
+    # here, where only controlled vehicles take part)
+    assert c.settings.late_tolerance_s() == 0.5 and c.settings.late_tolerance_s(mixed=True) == 0.1
+    assert c.margin_between(True, False) == c.margin_between(False, True) == pytest.approx(0.2 + 0.1)
     assert c.margin_between(False, False) == 1.0
     bounds = CrossingBounds(1.3, 2.6, 10.0, 14.0, 0.1)
     off_b, mw_b, ew_b, v_b = human_crossing(bounds, {"a": (5.0, 12.0)}, 0.0, 30.0)
@@ -342,7 +344,7 @@ def test_controlled_vehicles_enter_their_merging_zone_within_their_lateness_allo
     ctl = v[(v["driver"] == "automated") & v["t_merge_actual_s"].notna()]
     late = ctl["t_merge_actual_s"] - ctl["t_merge_planned_s"]
     assert len(ctl) > 20
-    assert late.min() >= -sc.sumo.step_length_s and late.max() <= sc.coordinator.late_tolerance_s
+    assert late.min() >= -sc.sumo.step_length_s and late.max() <= sc.coordinator.late_tolerance_s(mixed=True)
 
 
 def test_controlled_vehicles_give_way_a_bounded_number_of_times(mixed_run):

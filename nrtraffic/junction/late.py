@@ -9,9 +9,11 @@ that vehicle, and when the way clears its reference, long gone ahead, would take
 merging zone later than reserved, into the windows of the vehicles crossing its path.
 
 Each step, a controlled vehicle still before its merging zone is *late* when even its fastest entry
-from now (the planning's ``u_max_mps2`` from its speed, up to ``v_max_mps``) comes more than half
-the conflict margin after ``t_merge``; and so is one within :data:`EXIT_CHECK_M` of its merging
-zone whose exit is queued up to the zone (:mod:`nrtraffic.junction.exits`). Then:
+from now (the planning's ``u_max_mps2`` from its speed, up to ``v_max_mps``) comes more than its
+lateness allowance after ``t_merge``: half the conflict margin, and 0.1 s at the most where human
+drivers take part (:meth:`~nrtraffic.planning.coordinator.CoordinatorSettings.late_tolerance_s`).
+So is one within :data:`EXIT_CHECK_M` of its merging zone whose exit is queued up to the zone
+(:mod:`nrtraffic.junction.exits`). Then:
 
 - its merging-zone entry is closed to it: a standing obstacle for the longitudinal barrier, so that
   it stops with its front bumper at the entry (where it can still stop there at the barrier's
@@ -47,7 +49,7 @@ class LateGuard:
     def __init__(self, st, admission) -> None:
         self.st, self.admission = st, admission
         sc = st.sc
-        self.tol_s = sc.coordinator.late_tolerance_s
+        self.tol_s = sc.coordinator.late_tolerance_s(st.mixed)
         self.a, self.v_max = sc.planning.u_max_mps2, sc.planning.v_max_mps
         self.brake = sc.barriers.max_braking_mps2
         self.gated: dict[str, float] = {}  # late vehicle -> arc length [m] its centre of gravity stops at

@@ -68,6 +68,9 @@ class ScheduleInfeasible(InfeasibleProfile):
     """The merge time a vehicle must respect cannot be met within the planning bounds."""
 
 
+# where human drivers take part, a controlled vehicle enters its merging zone no later than this
+# after its plan, or is stopped at the zone's entry [s] (CoordinatorSettings.late_tolerance_s)
+MIXED_LATE_TOLERANCE_S = 0.1
 _EPS_S = 1e-9  # occupancies closer than this [s] count as apart (rounding of the pushed times)
 
 
@@ -129,12 +132,15 @@ class CoordinatorSettings:
     max_passed: int = 3
     max_wait_s: float = 0.0
 
-    @property
-    def late_tolerance_s(self) -> float:
+    def late_tolerance_s(self, mixed: bool = False) -> float:
         """How late [s] past its planned merge time a controlled vehicle may still enter its
-        merging zone: half the conflict margin (:mod:`nrtraffic.junction.late` stops a later one
-        at the zone's entry). Two controlled vehicles' margin covers both their allowances."""
-        return 0.5 * self.conflict_margin_s
+        merging zone (:mod:`nrtraffic.junction.late` stops a later one at the zone's entry): half
+        the conflict margin, so that two controlled vehicles' margin covers both their
+        allowances; where human drivers take part (``mixed``), :data:`MIXED_LATE_TOLERANCE_S` at
+        the most, so that the margin to a human driver's occupancy can be small
+        (:meth:`Coordinator.margin_between`)."""
+        half = 0.5 * self.conflict_margin_s
+        return min(half, MIXED_LATE_TOLERANCE_S) if mixed else half
 
     # the values each string setting takes (also the scenario file's JSON Schema)
     CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {
@@ -444,17 +450,18 @@ class Coordinator:
         - Two human drivers' reserved crossings: ``human_margin_s``. Their bounds already hold
           every motion their driver model allows, with a step to spare.
         - A human driver's and a controlled vehicle's: ``human_margin_s`` plus the controlled
-          vehicle's own lateness allowance (:attr:`CoordinatorSettings.late_tolerance_s`, half the
-          conflict margin). A controlled vehicle is never early: it tracks its plan to centimetres.
-          It enters its merging zone no later than that allowance after its plan, or is stopped at
-          the zone's entry (:mod:`nrtraffic.junction.late`). So only its lateness is not bounded
-          by the human's bounds.
+          vehicle's lateness allowance where human drivers take part
+          (:meth:`CoordinatorSettings.late_tolerance_s`, 0.1 s). A controlled vehicle is never
+          early: it tracks its plan to centimetres. It enters its merging zone no later than that
+          allowance after its plan, or is stopped at the zone's entry
+          (:mod:`nrtraffic.junction.late`). So only its lateness is not bounded by the human's
+          bounds.
         - Two controlled vehicles: ``coordinator.conflict_margin_s``, which covers the lateness of both."""
         if self.human_margin_s is None or not (a_human or b_human):
             return self.settings.conflict_margin_s
         if a_human and b_human:
             return self.human_margin_s
-        return self.human_margin_s + self.settings.late_tolerance_s
+        return self.human_margin_s + self.settings.late_tolerance_s(mixed=True)
 
     def advance(self, vehicle_id: str, t_min: float) -> Assignment | None:
         """Move the reserved crossing of ``vehicle_id`` (:meth:`reserve_crossing`), not started yet,
