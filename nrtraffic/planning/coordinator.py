@@ -445,23 +445,13 @@ class Coordinator:
         return t_m, blocker
 
     def margin_between(self, a_human: bool, b_human: bool) -> float:
-        """The margin [s] between two occupancies of a conflict area.
-
-        - Two human drivers' reserved crossings: ``human_margin_s``. Their bounds already hold
-          every motion their driver model allows, with a step to spare.
-        - A human driver's and a controlled vehicle's: ``human_margin_s`` plus the controlled
-          vehicle's lateness allowance where human drivers take part
-          (:meth:`CoordinatorSettings.late_tolerance_s`, 0.1 s). A controlled vehicle is never
-          early: it tracks its plan to centimetres. It enters its merging zone no later than that
-          allowance after its plan, or is stopped at the zone's entry
-          (:mod:`nrtraffic.junction.late`). So only its lateness is not bounded by the human's
-          bounds.
-        - Two controlled vehicles: ``coordinator.conflict_margin_s``, which covers the lateness of both."""
+        """The margin [s] between two occupancies of a conflict area: ``human_margin_s`` between two
+        human drivers' (their bounds hold every motion their driver model allows, a step to spare);
+        that plus the lateness allowance (:meth:`CoordinatorSettings.late_tolerance_s`) between a
+        human's and a controlled vehicle's (never early); ``conflict_margin_s`` between two controlled."""
         if self.human_margin_s is None or not (a_human or b_human):
             return self.settings.conflict_margin_s
-        if a_human and b_human:
-            return self.human_margin_s
-        return self.human_margin_s + self.settings.late_tolerance_s(mixed=True)
+        return self.human_margin_s + (0.0 if a_human and b_human else self.settings.late_tolerance_s(mixed=True))
 
     def advance(self, vehicle_id: str, t_min: float) -> Assignment | None:
         """Move the reserved crossing of ``vehicle_id`` (:meth:`reserve_crossing`), not started yet,
