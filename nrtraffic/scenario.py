@@ -285,7 +285,7 @@ class HumanDriver:
     tau_s: float = 1.0  # desired time headway [s]
     min_gap_m: float = 2.5  # bumper to bumper at a standstill [m]
     speed_dev: float = 0.0  # spread of the desired speed around the speed limit (SUMO's speedDev)
-    conflict_margin_s: float = 0.2  # between two human drivers' occupancies of a conflict area [s]
+    conflict_margin_s: float = 0.2  # between two human drivers' occupancies of a conflict area (+0.1 s: one controlled) [s]
     queue_reach_m: float = 17.0  # a standing driver this far short of its stop is reserved in the queue [m]
 
     CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"car_follow_model": ("Krauss",)}

@@ -102,7 +102,8 @@ class CoordinatorSettings:
         ``conflict_margin_s``, must not overlap; a vehicle takes the earliest merge time at which
         every area on its path is free of all reservations made before it (gaps between them may
         be used). Needs ``terminal_speed = "fixed"`` (the crossing speed is then known).
-    conflict_margin_s : safety time added before and after each occupancy of a conflict area [s].
+    conflict_margin_s : safety time added before and after each occupancy of a conflict area [s], between
+        two controlled vehicles (a human driver's: ``human.conflict_margin_s``, plus 0.1 s with a controlled one).
     policy : ``"fifo"`` (each vehicle is scheduled when it enters the control zone, in that order)
         or ``"batch"``: vehicles entering within ``batch_window_s`` of the first of them are
         scheduled together when the window closes (they drive on at their speed under SUMO till
