@@ -378,16 +378,17 @@ def one_source(overrides, seed, duration_s, api: bool = False) -> None:
     named as the Python API's arguments (``seed=``, ``overrides``), not as flags."""
     from nrtraffic.scenario import ScenarioError
 
+    setting = "overrides" if api else "--set"  # (named as the caller gave them)
     given = {}
     for o in overrides:
         key, _, text = str(o).partition("=")
         key = key.strip()
         if key in given and given[key] != text.strip():  # (the last had won without a word)
-            raise ScenarioError(f"{'overrides' if api else '--set'} {key} is given twice ({given[key]} and "
-                                f"{text.strip()}): give it once")
+            raise ScenarioError(f"{setting} {key} is given twice ({given[key]} and {text.strip()}): give it once")
         given[key] = text.strip()
-    for value, flag, names in ((seed, "--seed", ("scenario.seed", "general.seed")),
-                               (duration_s, "--duration", ("scenario.duration_s", "general.duration_s"))):
+    for value, flag, arg, names in ((seed, "--seed ", "seed=", ("scenario.seed", "general.seed")),
+                                    (duration_s, "--duration ", "duration_s=", ("scenario.duration_s",
+                                                                                "general.duration_s"))):
         for name in names:
             if value is None or name not in given:
                 continue
@@ -395,11 +396,9 @@ def one_source(overrides, seed, duration_s, api: bool = False) -> None:
                 same = float(given[name]) == float(value)
             except ValueError:
                 same = False
-            if not same and api:
-                raise ScenarioError(f"{flag.lstrip('-')}{'_s' if flag == '--duration' else ''}={value} and overrides "
-                                    f"{name}={given[name]} both give it: give one of them")
             if not same:
-                raise ScenarioError(f"{flag} {value} and --set {name}={given[name]} both give it: give one of them")
+                raise ScenarioError(f"{arg if api else flag}{value} and {setting} {name}={given[name]} both give it: "
+                                    "give one of them")
 
 
 def _flag(value, name: str) -> bool:

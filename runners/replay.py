@@ -341,9 +341,9 @@ def replay(run_dir: Path, out: Path | None = None, rtol: float = RTOL, atol: flo
             raise ReplayError(f"--out {out} would overwrite the run it verifies ({run_dir}"
                               f"{f', whose {linked.name} is a link into it' if linked is not None else ''}): give "
                               "another folder")
-        from runners.single import LOCK, lock_run_dir, read_manifest
+        from runners.single import holds_files, lock_run_dir, read_manifest
 
-        if Path(out).is_dir() and any(p.name != LOCK for p in Path(out).iterdir()) and not force:
+        if Path(out).is_dir() and holds_files(out) and not force:
             replace = ", or --force to replace the run in it" if read_manifest(Path(out)) is not None else (
                 " (it holds no run's manifest.json: files of your own?)")
             raise ReplayError(f"--out {out} is not empty: choose another folder{replace}")

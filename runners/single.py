@@ -273,6 +273,11 @@ def lock_run_dir(out: Path) -> None:
     raise ValueError(f"--out {out}: another run takes it at the same moment; choose another folder")
 
 
+def holds_files(out: Path) -> bool:
+    """Whether the folder ``out`` holds anything but the lock of a run writing there (:data:`LOCK`)."""
+    return any(p.name != LOCK for p in Path(out).iterdir())
+
+
 def unlock_run_dir(out: Path) -> None:
     """Remove this process's lock of ``out`` (:func:`lock_run_dir`), if it holds one."""
     path = Path(out) / LOCK
@@ -418,7 +423,7 @@ def claim_run_dir(out: Path, sc: scenario_mod.Scenario, seed: int | None, durati
         return
     lock_run_dir(out)  # (before anything of an earlier run there goes: held until the run ends, unlock_run_dir)
     try:
-        if not any(p.name != LOCK for p in out.iterdir()):
+        if not holds_files(out):
             return
         same = False
         try:
