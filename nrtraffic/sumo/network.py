@@ -328,6 +328,10 @@ RUN_SETS = {
 }
 
 
+# SUMO outputs each run writes itself, with its own settings (SumoSession: tripinfo.xml, collisions.xml, fcd.xml)
+RUN_WRITES = ("tripinfo-output", "collision-output", "fcd-output")
+
+
 def _shown(item: str, name: str) -> str:
     """An item of ``sumo.extra_args`` as the user gave it, with the option it stands for where that
     is another name (``-l (--log)``, ``--ndump (--netstate-dump)``)."""
@@ -403,14 +407,13 @@ def check_sumo_args(args: tuple[str, ...]) -> None:
         if n in ("remote-port", "num-clients"):
             raise NetworkError(f"sumo.extra_args: {a}: SUMO would wait for a TraCI client of its own and the run "
                                "would never start; leave it out")
-    of_output = [_shown(a, n) for a, n in given if n not in sumo_writing_options()
+    of_output = [(a, n) for a, n in given if n not in sumo_writing_options()
                  and any(n.startswith(w + ".") for w in sumo_writing_options())]
     if of_output:
-        ours = [w for w in ("tripinfo-output", "collision-output", "fcd-output")
-                if of_output[0].lstrip("-").startswith(w)]
-        what = (f"sets up SUMO's {ours[0]}, which the run writes itself with its own settings (its figures read "
-                "them)" if ours else "sets up a SUMO output that the run does not write")
-        raise NetworkError(f"sumo.extra_args: {', '.join(of_output)} {what}; leave it out")
+        output = of_output[0][1].split(".")[0]  # (the output it is a setting of)
+        what = (f"sets up SUMO's {output}, which the run writes itself with its own settings (its figures read "
+                "them)" if output in RUN_WRITES else "sets up a SUMO output that the run does not write")
+        raise NetworkError(f"sumo.extra_args: {', '.join(_shown(a, n) for a, n in of_output)} {what}; leave it out")
     writing = [_shown(a, n) for a, n in given if n in sumo_writing_options()]
     if writing:
         raise NetworkError(f"sumo.extra_args: {', '.join(writing)} would write files outside the run folder; "
