@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 QUEUE_MPS = 2.0  # a vehicle slower than this past a merging zone is a queue [m/s]
 BRAKING_MPS2 = 0.5  # ... and one decelerating harder than this stops where its deceleration takes it [m/s^2]
 ROOM_M = 3.0  # room a vehicle needs past its merging zone beyond its body and the standstill gap [m]
@@ -26,6 +28,17 @@ ROOM_M = 3.0  # room a vehicle needs past its merging zone beyond its body and t
 
 def _edge(lane: str) -> str:
     return lane.rsplit("_", 1)[0]
+
+
+def _queued_edges(snap) -> set[str]:
+    """The edges on which a vehicle stands, crawls or brakes (what :func:`blocked` counts as a
+    queue, wherever it is), found once per snapshot."""
+    found = getattr(snap, "_queued_edges", None)
+    if found is None:
+        slow = np.flatnonzero((snap.speed < QUEUE_MPS) | (snap.accel < -BRAKING_MPS2)).tolist()
+        found = {_edge(snap.lane[k]) for k in slow}
+        snap._queued_edges = found
+    return found
 
 
 def blocked(st, vid: str) -> str | None:
@@ -36,12 +49,15 @@ def blocked(st, vid: str) -> str | None:
     (internal) lanes are not searched."""
     rec = st.records[vid]
     mv = st.paths[rec.movement]
+    snap = st.snap
+    queued = _queued_edges(snap)
+    if not any(_edge(lane) in queued for lane in mv.lanes):  # (no vehicle there that could queue)
+        return None
     s_self = st.cg_on_path(vid)
     if s_self is None:
         return None
     body = st.params.length + st.sc.barriers.min_gap_m  # room a car takes in a queue [m]
-    rows = st.snap.rows_by_edge
-    snap = st.snap
+    rows = snap.rows_by_edge
     ahead, queue = [], []  # on its own lanes ahead of it; standing or stopping past the exit
     for lane in mv.lanes:
         if lane.startswith(":"):  # (the junction's own lanes are not searched: a car inside it is not counted)

@@ -35,7 +35,7 @@ import numpy as np
 
 from nrtraffic.control import batch as kb
 from nrtraffic.junction import exits
-from nrtraffic.planning.crossing import travel_times
+from nrtraffic.planning.crossing import travel_time
 
 EXIT_CHECK_M = 60.0  # a controlled vehicle this near its merging zone stops before it where its exit is queued [m]
 STANDING_MPS = 0.1  # below this speed a late vehicle stands, and its start is reserved again [m/s]
@@ -58,11 +58,12 @@ class LateGuard:
         """Which rows of the kernel's table are late now, at arc lengths ``s`` [m] and speeds ``v``
         [m/s]: their fastest entry (a speed above ``v_max`` kept) comes too late."""
         ctl = self.st.kernel.table
-        before = s < ctl.s_zone[:, 0]
-        if not before.any():
-            return before
-        t_in = self.st.t + travel_times(ctl.s_zone[:, 0] - s, self.a, np.maximum(self.v_max, v), v)
-        return before & (t_in > ctl.t_merge + self.tol_s)
+        late = np.zeros(len(s), dtype=bool)
+        s_merge, t_merge, t = ctl.s_zone[:, 0].tolist(), ctl.t_merge.tolist(), self.st.t
+        for i, (si, vi) in enumerate(zip(s.tolist(), v.tolist())):  # (a few rows: faster than arrays)
+            if si < s_merge[i]:
+                late[i] = t + travel_time(s_merge[i] - si, self.a, max(self.v_max, vi), vi) > t_merge[i] + self.tol_s
+        return late
 
     def step(self) -> None:
         """Find the late vehicles; those standing are handed back to SUMO where they stand, and
