@@ -26,6 +26,7 @@ from nrtraffic.vehicle.params import preset
 
 ROOT = Path(__file__).resolve().parent.parent
 JUNCTION_RK4_STEP_S = 0.1  # the junction scenarios' nominal predictor step (controller.predictor_step_s)
+PAIRS = 3  # whole runs: each with SUMO alone back to back, this many times (the table gives the medians)
 
 
 def _best(fn, repeat=5, number=200):
@@ -116,25 +117,35 @@ def bench_batch(n_vehicles: int, horizon=0.2, n_sub=20, barriers: bool = True, p
     return best / (n_steps * n_sub * N) * 1e6
 
 
-def bench_run(scenario_path: Path, duration_s: float | None = None, overrides: tuple[str, ...] = ()) -> dict:
+def bench_run(scenario_path: Path, duration_s: float | None = None, overrides: tuple[str, ...] = (),
+              pairs: int = 1) -> dict:
     """A co-simulation run, then SUMO alone on the same demand (the run's own route file and
-    network, every vehicle driven by SUMO, same steps), back to back in this process. Returns wall
-    times, real-time factors, their ratio and the run's wall-time breakdown."""
+    network, every vehicle driven by SUMO, same steps), back to back in this process, ``pairs``
+    times. Returns the median wall times, real-time factors and ratio of the pairs (the ratio's
+    lowest and highest too), and the wall-time breakdown of the run whose wall time is the median."""
     from nrtraffic.sumo.adapter import drive_alone
     from runners.single import run_scenario
 
     sc = scenario.load(scenario_path, list(overrides))
-    with tempfile.TemporaryDirectory() as tmp:
-        out = Path(tmp) / "run"
-        res = run_scenario(sc, out, duration_s=duration_s)
-        s = res.summary
-        co_wall, sim = s["wall_time_s"], s["sim_time_s"]
-        sumo_wall = drive_alone(sc.network_path, out / "sumo" / "routes.rou.xml", sc.sumo.step_length_s,
-                                sc.general.seed, sim, sc.sumo.lateral_resolution_m)
-    return {"scenario": sc.general.name, "overrides": " ".join(overrides), "sim_time_s": sim, "cosim_wall_s": co_wall,
-            "sumo_wall_s": sumo_wall, "cosim_rtf": sim / co_wall, "sumo_rtf": sim / sumo_wall,
-            "slowdown": co_wall / sumo_wall, "breakdown": s.get("wall_time_breakdown_s", {}),
-            "vehicles": s["vehicles_admitted"], "collisions": s["collisions"] + s["collisions_geometric"]}
+    measured = []
+    for _ in range(pairs):
+        with tempfile.TemporaryDirectory() as tmp:
+            out = Path(tmp) / "run"
+            s = run_scenario(sc, out, duration_s=duration_s).summary
+            sumo_wall = drive_alone(sc.network_path, out / "sumo" / "routes.rou.xml", sc.sumo.step_length_s,
+                                    sc.general.seed, s["sim_time_s"], sc.sumo.lateral_resolution_m)
+        measured.append((s, sumo_wall))
+    sim = measured[0][0]["sim_time_s"]
+    co = sorted(m[0]["wall_time_s"] for m in measured)
+    alone = sorted(m[1] for m in measured)
+    ratios = sorted(m[0]["wall_time_s"] / m[1] for m in measured)
+    mid = pairs // 2  # (an odd number of pairs: the median is one of them)
+    s = next(m[0] for m in measured if m[0]["wall_time_s"] == co[mid])
+    return {"scenario": sc.general.name, "overrides": " ".join(overrides), "sim_time_s": sim, "cosim_wall_s": co[mid],
+            "sumo_wall_s": alone[mid], "cosim_rtf": sim / co[mid], "sumo_rtf": sim / alone[mid],
+            "slowdown": ratios[mid], "slowdown_range": (ratios[0], ratios[-1]), "pairs": pairs,
+            "breakdown": s.get("wall_time_breakdown_s", {}), "vehicles": s["vehicles_admitted"],
+            "collisions": s["collisions"] + s["collisions_geometric"]}
 
 
 def memory_run(duration_s: float) -> None:
@@ -149,6 +160,29 @@ def memory_run(duration_s: float) -> None:
         size = (Path(tmp) / "run" / "trajectories.parquet").stat().st_size
     print(json.dumps({"duration_s": duration_s, "peak_rss_mib": peak_rss_mib(), "vehicles": rows,
                       "trajectory_mib": size / 2**20}))
+
+
+def first_runs() -> None:
+    """Two 30 s runs of cross4 in this process, and print their wall times [s] (called in a fresh
+    process: the first also imports the run's modules and loads the compiled kernels from numba's
+    cache)."""
+    from runners.single import run_scenario
+
+    sc = scenario.load(ROOT / "sumo_scenarios" / "cross4" / "scenario.toml", [])
+    walls = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for k in range(2):
+            t0 = time.perf_counter()
+            run_scenario(sc, Path(tmp) / f"run{k}", duration_s=30.0)
+            walls.append(time.perf_counter() - t0)
+    print(json.dumps(walls))
+
+
+def bench_first_runs() -> list[float]:
+    """Wall times [s] of the first and the second 30 s run of a fresh process (``first_runs``)."""
+    code = "from runners.bench import first_runs; first_runs()"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)
+    return json.loads(out.stdout.strip().splitlines()[-1])
 
 
 def peak_rss_mib() -> float:
@@ -328,17 +362,18 @@ def run_all(quick: bool = False) -> str:
     no_cbf = bench_batch(20, barriers=False)
     dur = 120.0 if quick else 600.0
     cross = ROOT / "sumo_scenarios" / "cross4" / "scenario.toml"
-    # the first run of a process also loads every compiled kernel from numba's cache (a sweep's
-    # workers pay this once): a short run first, reported apart, so that the runs below time the
-    # simulation alone
-    first = bench_run(cross, 30.0)
-    again = bench_run(cross, 30.0)
-    runs = [bench_run(cross, dur), bench_run(cross, dur, ("demand.rate_veh_h=600",)),
-            bench_run(cross, dur, ('controller.predictor="euler"', "controller.predictor_step_s=0.001")),
-            bench_run(ROOT / "sumo_scenarios" / "cross4_2lane" / "scenario.toml", dur),
-            bench_run(ROOT / "sumo_scenarios" / "corridor3" / "scenario.toml", dur),
-            bench_run(ROOT / "sumo_scenarios" / "paper_curved" / "scenario.toml"),
-            bench_run(ROOT / "sumo_scenarios" / "paper_cbf" / "scenario.toml")]
+    # the first run of a process also imports the run's modules and loads every compiled kernel from
+    # numba's cache (a sweep's workers pay this once): measured in a process of its own, and a short
+    # run here first, so that the runs below time the simulation alone
+    first, again = bench_first_runs()
+    bench_run(cross, 30.0)
+    n_pairs = 1 if quick else PAIRS
+    runs = [bench_run(cross, dur, pairs=n_pairs), bench_run(cross, dur, ("demand.rate_veh_h=600",), pairs=n_pairs),
+            bench_run(cross, dur, ('controller.predictor="euler"', "controller.predictor_step_s=0.001"), pairs=n_pairs),
+            bench_run(ROOT / "sumo_scenarios" / "cross4_2lane" / "scenario.toml", dur, pairs=n_pairs),
+            bench_run(ROOT / "sumo_scenarios" / "corridor3" / "scenario.toml", dur, pairs=n_pairs),
+            bench_run(ROOT / "sumo_scenarios" / "paper_curved" / "scenario.toml", pairs=n_pairs),
+            bench_run(ROOT / "sumo_scenarios" / "paper_cbf" / "scenario.toml", pairs=n_pairs)]
     mem = [bench_memory(d) for d in ((60.0, 120.0) if quick else (600.0, 3600.0))]
     rss = peak_rss_mib()
     lines = [
@@ -368,19 +403,22 @@ def run_all(quick: bool = False) -> str:
         "## Whole runs against SUMO alone",
         "",
         "| run | simulated | co-simulation real-time factor | SUMO alone real-time factor | co-simulation / "
-        "SUMO alone | vehicles controlled | collisions |",
+        "SUMO alone (lowest-highest) | vehicles controlled | collisions |",
         "|---|---|---|---|---|---|---|",
     ]
     for r in runs:
         label = r["scenario"] + (f" `{r['overrides']}`" if r["overrides"] else "")
         lines.append(f"| {label} | {r['sim_time_s']:.0f} s | {r['cosim_rtf']:.1f} | {r['sumo_rtf']:.0f} | "
-                     f"{r['slowdown']:.1f} x | {r['vehicles']} | {r['collisions']} |")
+                     f"{r['slowdown']:.1f} x ({r['slowdown_range'][0]:.1f}-{r['slowdown_range'][1]:.1f}) | "
+                     f"{r['vehicles']} | {r['collisions']} |")
     lines += [
         "",
+        f"Each run and SUMO alone ran back to back, {n_pairs} times; the table gives the medians, and the lowest and "
+        "highest ratio of a pair. "
         "The real-time factor is simulated time over the run's wall time, set-up and results included. The "
-        "first run of a process also loads the compiled kernels from numba's cache, once (a sweep's workers do it "
-        f"once each): a 30 s run of cross4 took {first['cosim_wall_s']:.2f} s as this process's first and "
-        f"{again['cosim_wall_s']:.2f} s the next time. The runs above follow it.",
+        "first run of a process also imports the run's modules and loads the compiled kernels from numba's cache, "
+        f"once (a sweep's workers do it once each): in a fresh process, a 30 s run of cross4 took {first:.2f} s "
+        f"as the process's first run and {again:.2f} s the next time. The runs above follow a first run.",
         "",
         f"## Where a run's time goes (cross4, 400 veh/h per approach, {dur:.0f} s, wall "
         f"{runs[0]['cosim_wall_s']:.1f} s)",
