@@ -403,7 +403,7 @@ def run_all(quick: bool = False) -> str:
         "## Whole runs against SUMO alone",
         "",
         "| run | simulated | co-simulation real-time factor | SUMO alone real-time factor | co-simulation / "
-        "SUMO alone (lowest-highest) | vehicles controlled | collisions |",
+        "SUMO alone (lowest-highest) | vehicles controlled in the measurement window | collisions |",
         "|---|---|---|---|---|---|---|",
     ]
     for r in runs:
