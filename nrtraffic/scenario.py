@@ -11,6 +11,7 @@ Units are in the key names: ``_s`` seconds, ``_m`` metres, ``_mps`` m/s, ``_mps2
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import tomllib
 from dataclasses import dataclass, field
@@ -606,6 +607,16 @@ def _coerce(section: str, key: str, typ, value):
     raise ScenarioError(f"{where}: unsupported type")  # pragma: no cover
 
 
+@functools.lru_cache(maxsize=16)
+def _euler_step_limit(params: tuple, v_max: float) -> tuple[float, float]:
+    """:func:`nrtraffic.vehicle.bicycle.euler_step_limit`, once per vehicle and top speed."""
+    import numpy as np
+
+    from nrtraffic.vehicle.bicycle import euler_step_limit
+
+    return euler_step_limit(np.array(params), v_max)
+
+
 def _missing(path: Path) -> str:
     """Why ``path`` is no file to read: "not found", "is a folder", or "is not a regular file" (a
     device, a pipe or a socket, which would be read for ever or not at all)."""
@@ -920,6 +931,15 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
         raise ScenarioError(f"sumo.step_length_s / controller.plant_step_s = {ratio:.0f} plant steps per SUMO step, "
                             f"more than {MAX_PLANT_STEPS_PER_STEP}: raise controller.plant_step_s")
     v_top = max(sc.planning.v_max_mps, 1.0)  # the vehicle type's maxSpeed in SUMO (demand.py)
+    h_max, v_at = _euler_step_limit(tuple(sc.vehicle.params().as_array()), v_top)
+    if sc.controller.plant_step_s > h_max:
+        n = math.ceil(sc.sumo.step_length_s / h_max - 1e-9)
+        while abs(sc.sumo.step_length_s / n * 1e6 - round(sc.sumo.step_length_s / n * 1e6)) > 1e-6:
+            n += 1  # (the first whole divisor of the SUMO step with at most six decimals)
+        raise ScenarioError(f"controller.plant_step_s = {sc.controller.plant_step_s:g} s is too long for the plant's "
+                            f"forward-Euler step: this vehicle's lateral and yaw modes at {v_at:.2f} m/s need "
+                            f"{h_max:.3g} s or less, or the plant is integrated unstably: set it to "
+                            f"{sc.sumo.step_length_s / n:.4g} (sumo.step_length_s / {n}) or less")
     speeds = [("demand.entry_speed_mps", sc.demand.entry_speed_mps)] + [
         (f"vehicles.{v.id}.depart_speed_mps", v.depart_speed_mps) for v in sc.vehicles]
     for where, v in speeds:

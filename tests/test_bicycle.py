@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from nrtraffic.vehicle.bicycle import dynamics, jacobians, rhs_tangent, simulate
+from nrtraffic.vehicle.bicycle import dynamics, euler_step_limit, jacobians, rhs_tangent, simulate
 from nrtraffic.vehicle.params import BicycleParams, preset
 
 P = preset("paper")
@@ -150,3 +150,18 @@ def test_kernel_plant_step_is_the_forward_euler_step_of_eq_1():
     euler_step(ref, np.array([out[0, kb.OUT_A], out[0, kb.OUT_D]]), p, 0.005, np.empty(6))
     assert np.allclose(X[0], ref, rtol=0.0, atol=1e-12)
     assert not np.allclose(X[0], x0)
+
+
+def test_euler_step_limit_separates_decay_from_growth():
+    """The plant's forward-Euler step limit against the plant itself: a small lateral and yaw
+    disturbance at the limiting speed dies out a little below the limit and grows a little above."""
+    h_max, v = euler_step_limit(p, 13.9)
+    assert 0.005 < h_max < 0.02 and 0.5 < v < 1.5  # stiffest in the blend to the kinematic model
+    x0 = [0.0, 0.0, v, 1e-6, 0.0, 1e-6]
+    size = []
+    for h in (0.97 * h_max, 1.03 * h_max):
+        x = simulate(x0, [0.0, 0.0], p, h, 300)
+        size.append(abs(x[-1, 3]) + abs(x[-1, 5]))
+    assert size[0] < 1e-7  # below the limit: decayed from 2e-6
+    assert size[1] > 1e-5  # above it: grown (about 1.06 per step)
+    assert euler_step_limit(p, 13.9, dv=0.001)[0] == pytest.approx(h_max, rel=1e-3)  # sampled finely enough

@@ -82,3 +82,14 @@ def test_overrides_and_resolved_round_trip(tmp_path, paper_curved_path):
 def test_unknown_vehicle_parameter(paper_curved_path):
     with pytest.raises(ScenarioError, match="vehicle.wheels is not a vehicle parameter"):
         scenario.load(paper_curved_path, ["vehicle.wheels=3"])
+
+
+def test_a_plant_step_beyond_eulers_stability_limit_is_refused(tmp_path, paper_curved_path):
+    """The paper's car needs a plant step of 0.0111 s or less (tests/test_bicycle.py checks the
+    limit against the plant); the message names the key and a step that divides the SUMO step."""
+    f = _write(tmp_path, paper_curved_path, lambda s: s.replace("plant_step_s = 0.005", "plant_step_s = 0.02"))
+    with pytest.raises(ScenarioError, match=r"controller\.plant_step_s = 0\.02 s .* 0\.0111 s or less.* set it to "
+                                            r"0\.01 \(sumo\.step_length_s / 10\)"):
+        scenario.load(f)
+    f = _write(tmp_path, paper_curved_path, lambda s: s.replace("plant_step_s = 0.005", "plant_step_s = 0.01"))
+    assert scenario.load(f).controller.plant_step_s == 0.01
