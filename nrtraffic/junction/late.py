@@ -85,8 +85,8 @@ class LateGuard:
         again = np.zeros(len(ctl.ids), dtype=bool)
         for i in np.flatnonzero(late).tolist():
             vid = ctl.ids[i]
-            if v[i] < STANDING_MPS and vid in st.snap.row:
-                again[i] = True
+            if v[i] < STANDING_MPS and vid in st.snap.row and st.cg_on_path(vid) is not None:
+                again[i] = True  # (a car standing off its path's lanes cannot start from rest there)
                 continue
             stop = float(ctl.s_zone[i, 0]) - cg  # front bumper at the merging-zone entry
             if v[i] * v[i] / (2.0 * self.brake) <= stop - s[i]:
