@@ -70,7 +70,7 @@ MAX_PREDICTOR_STEPS_PER_S = 2_000_000  # plant steps per second x predictor step
 class Controller:
     """``[controller]``: plant integration, predictor and Newton-Raphson flow (paper s. 3.1, 4.1)."""
 
-    plant_step_s: float = 0.005  # forward-Euler step of the plant (paper dt)
+    plant_step_s: float = 0.005  # forward-Euler step of the plant (paper dt); at most its stability limit (0.0111 for the paper car)
     predictor: str = "euler"  # integrator of the predictor: "euler" (the paper's) or "rk4" (docs/method.md)
     predictor_step_s: float = 0.001  # nominal step of the predictor (paper Delta t, for Euler)
     horizon_s: float = 0.2  # prediction horizon T (not given by the paper; see docs/method.md)
