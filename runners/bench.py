@@ -21,7 +21,7 @@ from numba import njit
 from nrtraffic import scenario
 from nrtraffic.control.nr_flow import EULER, RK4, new_workspace, nr_update, predictor_steps
 from nrtraffic.geometry import LanePath
-from nrtraffic.vehicle.bicycle import euler_step
+from nrtraffic.vehicle.bicycle import euler_step, euler_step_limit
 from nrtraffic.vehicle.params import preset
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -380,6 +380,8 @@ def run_all(quick: bool = False) -> str:
             bench_run(ROOT / "sumo_scenarios" / "paper_cbf" / "scenario.toml", pairs=n_pairs)]
     mem = [bench_memory(d) for d in ((60.0, 120.0) if quick else (600.0, 3600.0))]
     rss = peak_rss_mib()
+    cross_sc = scenario.load(cross, [])
+    h_limit = euler_step_limit(cross_sc.vehicle.params().as_array(), cross_sc.planning.v_max_mps)[0]
     lines = [
         BENCH_TITLES[0],
         "",
@@ -427,8 +429,8 @@ def run_all(quick: bool = False) -> str:
         f"## Where a run's time goes (cross4, 400 veh/h per approach, {dur:.0f} s)",
         "",
         "The run of median wall time of each row above. The plant step (`controller.plant_step_s`) is the "
-        "paper's 0.005 s by default; 0.01 s is within forward Euler's stability limit for this car (0.0111 s), "
-        "and halves the kernel's plant steps.",
+        "paper's 0.005 s by default; 0.01 s is within forward Euler's stability limit for this car "
+        f"({h_limit:.4f} s), and halves the kernel's plant steps.",
         "",
         "| part | cross4 (plant step 0.005 s) | cross4 `controller.plant_step_s=0.01` |",
         "|---|---|---|",
