@@ -33,11 +33,10 @@ def _edge(lane: str) -> str:
 def _queued_edges(snap) -> set[str]:
     """The edges on which a vehicle stands, crawls or brakes (what :func:`blocked` counts as a
     queue, wherever it is), found once per snapshot."""
-    found = getattr(snap, "_queued_edges", None)
+    found = snap.derived.get("queued_edges")
     if found is None:
         slow = np.flatnonzero((snap.speed < QUEUE_MPS) | (snap.accel < -BRAKING_MPS2)).tolist()
-        found = {_edge(snap.lane[k]) for k in slow}
-        snap._queued_edges = found
+        found = snap.derived["queued_edges"] = {_edge(snap.lane[k]) for k in slow}
     return found
 
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 import functools
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -66,7 +66,8 @@ class VehicleTable:
     ``ids`` and ``lane`` are lists, the rest arrays in the same order: ``lane_pos`` front-bumper
     position along the lane [m], ``x``, ``y`` front bumper [m], ``psi`` heading [rad],
     ``speed`` [m/s], ``accel`` longitudinal acceleration of the last step [m/s^2]; ``row`` maps an
-    id to its row.
+    id to its row. ``derived`` holds what a reader works out from the table once per instant,
+    under a name of its own (the edges where a car queues, for the exit check).
     """
 
     ids: list
@@ -78,6 +79,7 @@ class VehicleTable:
     speed: np.ndarray
     accel: np.ndarray
     row: dict
+    derived: dict = field(default_factory=dict, repr=False, compare=False)
 
     @functools.cached_property
     def rows_by_edge(self) -> dict[str, list[int]]:
