@@ -933,13 +933,19 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
     v_top = max(sc.planning.v_max_mps, 1.0)  # the vehicle type's maxSpeed in SUMO (demand.py)
     h_max, v_at = _euler_step_limit(tuple(sc.vehicle.params().as_array()), v_top)
     if sc.controller.plant_step_s > h_max:
-        n = math.ceil(sc.sumo.step_length_s / h_max - 1e-9)
-        while abs(sc.sumo.step_length_s / n * 1e6 - round(sc.sumo.step_length_s / n * 1e6)) > 1e-6:
-            n += 1  # (the first whole divisor of the SUMO step with at most six decimals)
-        raise ScenarioError(f"controller.plant_step_s = {sc.controller.plant_step_s:g} s is too long for the plant's "
-                            f"forward-Euler step: this vehicle's lateral and yaw modes at {v_at:.2f} m/s need "
-                            f"{h_max:.3g} s or less, or the plant is integrated unstably: set it to "
-                            f"{sc.sumo.step_length_s / n:.4g} (sumo.step_length_s / {n}) or less")
+        need = (f"controller.plant_step_s = {sc.controller.plant_step_s:g} s is too long for the plant's forward-Euler "
+                f"step: this vehicle's lateral and yaw modes at {v_at:.2f} m/s need {h_max:.3g} s or less, or the "
+                "plant is integrated unstably")
+        shortest = max(RANGES["controller"]["plant_step_s"][0], sc.sumo.step_length_s / MAX_PLANT_STEPS_PER_STEP)
+        if h_max < shortest:
+            raise ScenarioError(f"{need}; that is below the shortest plant step allowed ({shortest:g} s): the tyres "
+                                "(vehicle.Caf, vehicle.Car) are far too stiff for the vehicle's mass and yaw inertia "
+                                "(vehicle.m, vehicle.Iz) and axle distances (vehicle.lf, vehicle.lr): check them")
+        for n in range(math.ceil(sc.sumo.step_length_s / h_max - 1e-9), MAX_PLANT_STEPS_PER_STEP + 1):
+            if abs(sc.sumo.step_length_s / n * 1e6 - round(sc.sumo.step_length_s / n * 1e6)) <= 1e-6:
+                raise ScenarioError(f"{need}: set it to {sc.sumo.step_length_s / n:.4g} (sumo.step_length_s / {n}) "
+                                    "or less")  # (the first whole divisor of the SUMO step with at most six decimals)
+        raise ScenarioError(f"{need}: set it to a whole divisor of sumo.step_length_s of {h_max:.3g} s or less")
     speeds = [("demand.entry_speed_mps", sc.demand.entry_speed_mps)] + [
         (f"vehicles.{v.id}.depart_speed_mps", v.depart_speed_mps) for v in sc.vehicles]
     for where, v in speeds:

@@ -93,3 +93,15 @@ def test_a_plant_step_beyond_eulers_stability_limit_is_refused(tmp_path, paper_c
         scenario.load(f)
     f = _write(tmp_path, paper_curved_path, lambda s: s.replace("plant_step_s = 0.005", "plant_step_s = 0.01"))
     assert scenario.load(f).controller.plant_step_s == 0.01
+
+
+def test_a_vehicle_too_stiff_for_any_allowed_plant_step_is_named(tmp_path, paper_curved_path):
+    """Tyres in range but far too stiff for the mass, yaw inertia and axle distances (also in range)
+    need a plant step below the shortest allowed: the message names the vehicle's keys at once (the
+    search for a step to suggest had run for ever). A SUMO step with no short enough divisor of six
+    decimals or fewer gets no number to set."""
+    stiff = ["vehicle.Caf=1e7", "vehicle.Car=1e7", "vehicle.m=300", "vehicle.Iz=50", "vehicle.lf=10"]
+    with pytest.raises(ScenarioError, match=r"below the shortest plant step allowed \(0\.0001 s\).*vehicle\.Caf"):
+        scenario.load(paper_curved_path, stiff)
+    with pytest.raises(ScenarioError, match=r"0\.0111 s or less.*a whole divisor of sumo\.step_length_s of 0\.0111 s"):
+        scenario.load(paper_curved_path, ["sumo.step_length_s=0.0123457", "controller.plant_step_s=0.0123457"])
