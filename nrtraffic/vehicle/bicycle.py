@@ -207,7 +207,8 @@ def euler_step_limit(p, v_max: float, dv: float = 0.01) -> tuple[float, float]:
     ``h <= -2 Re(lambda) / |lambda|^2``. The lateral and yaw modes are stiffest at low speed (with
     the paper's car: -180 1/s at 1.35 m/s, in the blend to the kinematic model; h <= 0.0111 s).
     Modes with a non-negative real part (position, heading, and an oversteering car's unstable
-    mode above its critical speed) set no step limit."""
+    mode above its critical speed) set no step limit. Straight driving is the stiffest case at a
+    given speed: the slip angles enter through atan, whose slope is largest at zero slip."""
     fx = np.zeros((6, 6))
     fu = np.zeros((6, 2))
     x = np.zeros(6)
