@@ -165,3 +165,22 @@ def test_euler_step_limit_separates_decay_from_growth():
     assert size[0] < 1e-7  # below the limit: decayed from 2e-6
     assert size[1] > 1e-5  # above it: grown (about 1.06 per step)
     assert euler_step_limit(p, 13.9, dv=0.001)[0] == pytest.approx(h_max, rel=1e-3)  # sampled finely enough
+
+
+def test_straight_driving_sets_the_step_limit():
+    """Slip, yaw rate, steering and acceleration only soften the lateral and yaw modes (the slip
+    angles enter through atan, steepest at zero slip): over random states the step that eq. (1)'s
+    Jacobian allows is never shorter than the straight-driving limit."""
+    h_max, _ = euler_step_limit(p, 13.9)
+    fx, fu = np.zeros((6, 6)), np.zeros((6, 2))
+    rng = np.random.default_rng(1)
+    shortest = math.inf
+    for _ in range(3000):
+        x = np.array([0.0, 0.0, rng.uniform(0.0, 14.0), rng.uniform(-2.0, 2.0), rng.uniform(-1.0, 1.0),
+                      rng.uniform(-1.5, 1.5)])
+        jacobians(x, np.array([rng.uniform(-6.0, 3.0), rng.uniform(-0.6, 0.6)]), p, fx, fu)
+        lam = np.linalg.eigvals(fx)
+        lam = lam[lam.real < 0.0]
+        if lam.size:
+            shortest = min(shortest, float(np.min(-2.0 * lam.real / np.abs(lam) ** 2)))
+    assert h_max * (1 - 1e-3) <= shortest < 1.2 * h_max  # (and near it: the sample reaches the stiff band)
