@@ -97,8 +97,8 @@ def test_a_plant_step_beyond_eulers_stability_limit_is_refused(tmp_path, paper_c
 
 def test_a_vehicle_too_stiff_for_any_allowed_plant_step_is_named(tmp_path, paper_curved_path):
     """Tyres in range but far too stiff for the mass, yaw inertia and axle distances (also in range)
-    need a plant step below the shortest allowed: the message names the vehicle's keys at once (the
-    search for a step to suggest had run for ever). A SUMO step with no short enough divisor of six
+    need a plant step below the shortest allowed: the message names the vehicle's keys at once (no
+    step is searched for, as none would do). A SUMO step with no short enough divisor of six
     decimals or fewer gets no number to set."""
     stiff = ["vehicle.Caf=1e7", "vehicle.Car=1e7", "vehicle.m=300", "vehicle.Iz=50", "vehicle.lf=10"]
     with pytest.raises(ScenarioError, match=r"below the shortest plant step allowed \(0\.0001 s\).*vehicle\.Caf"):
