@@ -564,13 +564,18 @@ class SumoSession:
 
 
 def drive_alone(net: Path, routes: Path, step_length_s: float, seed: int, until_s: float,
-                lateral_resolution_m: float = 0.0) -> float:
+                lateral_resolution_m: float = 0.0, read: bool = False) -> float:
     """SUMO alone on a route file, every vehicle driven by SUMO, for ``until_s`` simulated seconds
-    (the reference a co-simulation's speed is measured against); returns the wall time [s]."""
+    (the reference a co-simulation's speed is measured against); returns the wall time [s]. With
+    ``read``, every vehicle is also read after each step as a run reads them (subscribed on
+    departure, :meth:`SumoSession.snapshot`): what the coupling costs before any control."""
     import time
 
     t0 = time.perf_counter()
     with SumoSession(net, routes, step_length_s, seed, lateral_resolution_m) as sumo:
         while sumo.time < until_s - 1e-9:
             sumo.step()
+            if read:
+                sumo.departed()
+                sumo.snapshot()
     return time.perf_counter() - t0
