@@ -617,6 +617,13 @@ def _euler_step_limit(params: tuple, v_max: float) -> tuple[float, float]:
     return euler_step_limit(np.array(params), v_max)
 
 
+def plant_step_limit(sc: "Scenario") -> tuple[float, float]:
+    """The longest stable ``controller.plant_step_s`` [s] for the scenario's vehicle over its speeds
+    (up to ``planning.v_max_mps``, the controlled type's maxSpeed in SUMO), and the speed [m/s]
+    that sets it."""
+    return _euler_step_limit(tuple(sc.vehicle.params().as_array()), max(sc.planning.v_max_mps, 1.0))
+
+
 def _missing(path: Path) -> str:
     """Why ``path`` is no file to read: "not found", "is a folder", or "is not a regular file" (a
     device, a pipe or a socket, which would be read for ever or not at all)."""
@@ -931,7 +938,7 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
         raise ScenarioError(f"sumo.step_length_s / controller.plant_step_s = {ratio:.0f} plant steps per SUMO step, "
                             f"more than {MAX_PLANT_STEPS_PER_STEP}: raise controller.plant_step_s")
     v_top = max(sc.planning.v_max_mps, 1.0)  # the vehicle type's maxSpeed in SUMO (demand.py)
-    h_max, v_at = _euler_step_limit(tuple(sc.vehicle.params().as_array()), v_top)
+    h_max, v_at = plant_step_limit(sc)
     if sc.controller.plant_step_s > h_max:
         need = (f"controller.plant_step_s = {sc.controller.plant_step_s:g} s is too long for the plant's forward-Euler "
                 f"step: this vehicle's lateral and yaw modes at {v_at:.2f} m/s need {h_max:.3g} s or less, or the "

@@ -22,7 +22,7 @@ from numba import njit
 from nrtraffic import scenario
 from nrtraffic.control.nr_flow import EULER, RK4, new_workspace, nr_update, predictor_steps
 from nrtraffic.geometry import LanePath
-from nrtraffic.vehicle.bicycle import euler_step, euler_step_limit
+from nrtraffic.vehicle.bicycle import euler_step
 from nrtraffic.vehicle.params import preset
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -388,8 +388,7 @@ def run_all(quick: bool = False) -> str:
             bench_run(ROOT / "sumo_scenarios" / "paper_cbf" / "scenario.toml", pairs=n_pairs)]
     mem = [bench_memory(d) for d in ((60.0, 120.0) if quick else (600.0, 3600.0))]
     rss = peak_rss_mib()
-    cross_sc = scenario.load(cross, [])
-    h_limit = euler_step_limit(cross_sc.vehicle.params().as_array(), cross_sc.planning.v_max_mps)[0]
+    h_limit = scenario.plant_step_limit(scenario.load(cross, []))[0]
     lines = [
         BENCH_TITLES[0],
         "",

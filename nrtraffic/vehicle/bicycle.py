@@ -198,31 +198,33 @@ def euler_step(x, u, p, h, work):
         x[2] = 0.0
 
 
+def euler_step_limit_at(x, u, p) -> float:
+    """Longest forward-Euler plant step [s] that is linearly stable about state ``x`` under input
+    ``u``: every eigenvalue ``lambda`` of eq. (1)'s ``df/dx`` with a negative real part needs
+    ``|1 + h lambda| <= 1``, i.e. ``h <= -2 Re(lambda) / |lambda|^2``. Modes with a non-negative
+    real part (position, heading, and an oversteering car's unstable mode above its critical speed)
+    set no limit (``inf``)."""
+    fx = np.zeros((6, 6))
+    jacobians(np.asarray(x, dtype=float), np.asarray(u, dtype=float), p, fx, np.zeros((6, 2)))
+    lam = np.linalg.eigvals(fx)
+    lam = lam[lam.real < 0.0]
+    return float(np.min(-2.0 * lam.real / np.abs(lam) ** 2)) if lam.size else math.inf
+
+
 def euler_step_limit(p, v_max: float, dv: float = 0.01) -> tuple[float, float]:
     """Longest forward-Euler plant step [s] that is stable for eq. (1) driving straight at any
-    speed in ``[0, v_max]`` [m/s] (sampled every ``dv``), and the speed [m/s] that sets it.
-
-    Linear stability of ``x_{k+1} = x_k + h f(x_k)`` about straight driving: every eigenvalue
-    ``lambda`` of ``df/dx`` with a negative real part needs ``|1 + h lambda| <= 1``, i.e.
-    ``h <= -2 Re(lambda) / |lambda|^2``. The lateral and yaw modes are stiffest at low speed (with
-    the paper's car: -180 1/s at 1.35 m/s, in the blend to the kinematic model; h <= 0.0111 s).
-    Modes with a non-negative real part (position, heading, and an oversteering car's unstable
-    mode above its critical speed) set no step limit. Straight driving is the stiffest case at a
-    given speed: the slip angles enter through atan, whose slope is largest at zero slip."""
-    fx = np.zeros((6, 6))
-    fu = np.zeros((6, 2))
-    x = np.zeros(6)
-    u = np.zeros(2)
+    speed in ``[0, v_max]`` [m/s] (sampled every ``dv``), and the speed [m/s] that sets it
+    (:func:`euler_step_limit_at` of each). The lateral and yaw modes are stiffest at low speed
+    (with the paper's car: -180 1/s at 1.35 m/s, in the blend to the kinematic model;
+    h <= 0.0111 s). Straight driving is the stiffest case at a given speed: the slip angles enter
+    through atan, whose slope is largest at zero slip."""
+    x, u = np.zeros(6), np.zeros(2)
     h_max, v_at = math.inf, 0.0
     for v in np.arange(0.0, max(v_max, 2.0 * p[_VHI]) + dv, dv):
         x[2] = v
-        jacobians(x, u, p, fx, fu)
-        lam = np.linalg.eigvals(fx)
-        lam = lam[lam.real < 0.0]
-        if lam.size:
-            h = float(np.min(-2.0 * lam.real / np.abs(lam) ** 2))
-            if h < h_max:
-                h_max, v_at = h, float(v)
+        h = euler_step_limit_at(x, u, p)
+        if h < h_max:
+            h_max, v_at = h, float(v)
     return h_max, v_at
 
 
