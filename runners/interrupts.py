@@ -7,7 +7,9 @@ is *deferred*: it is noted, the pre-run checks and the set-up go on, and it is r
 run is *armed* (:func:`arm`), which then stops like any interrupt of a running simulation: what was
 finished is written and ``summary.json`` says ``"status": "failed"`` and why; further signals are
 ignored while that is written. A second signal while one is deferred stops at once (a way out of a
-slow check). Once the run's results are written the
+slow check). A signal is never raised while numba compiles a kernel or loads it from its cache
+(an exception there can crash the process, :func:`_in_compiler`): it is sent again every
+:data:`AGAIN_S` until it lands outside, and acts then. Once the run's results are written the
 command defers again (:func:`defer`), so that its figures and report are finished; :func:`pending`
 then tells the command that it was asked to stop. Once the command has its exit status
 (:func:`finish`) a signal is only noted, whichever came before, and once the command returns it
@@ -20,7 +22,9 @@ a test or a sweep's worker :func:`arm` and :func:`defer` do nothing.
 
 from __future__ import annotations
 
+import os
 import signal
+import sys
 import threading
 
 
@@ -34,6 +38,8 @@ _pending: int | None = None
 _received: int | None = None  # the signal that interrupted the run (armed), for its summary
 _finished = False  # the command has its exit status: a signal is noted, never raised
 
+
+AGAIN_S = 0.1  # a signal that came while numba compiled is sent again after this [s]
 
 # the signals handled: termination, Ctrl-C, and the terminal closing (SIGHUP, where there is one)
 SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGINT", "SIGHUP") if hasattr(signal, name))
@@ -53,9 +59,40 @@ def _handler(signum, frame) -> None:
     if _armed and _received is not None:
         return  # one is enough: the run is stopping, let its clean-up finish
     if _armed or _pending is not None:
+        if _in_compiler(frame):  # never raised inside numba or LLVM: sent again until it lands outside
+            _send_again(signum)
+            return
         _received = signum
         raise _interrupt(signum)
     _pending = signum
+
+
+def _in_compiler(frame) -> bool:
+    """Whether ``frame`` or a frame that called it is numba's or llvmlite's code (compiling a
+    kernel, or loading it from numba's cache). An exception raised there can land in one of
+    llvmlite's ctypes callbacks, which ignores it and hands LLVM an unfinished answer: the process
+    then dies of a segmentation fault, its summary still saying "running"."""
+    dirs = tuple(os.path.dirname(m.__file__) + os.sep for m in map(sys.modules.get, ("numba", "llvmlite"))
+                 if getattr(m, "__file__", None))
+    while dirs and frame is not None:
+        if frame.f_code.co_filename.startswith(dirs):
+            return True
+        frame = frame.f_back
+    return False
+
+
+_again: threading.Timer | None = None  # the signal, to be sent again (one at a time)
+
+
+def _send_again(signum: int) -> None:
+    """Send ``signum`` to this process again in :data:`AGAIN_S`, so that it interrupts once the
+    compiler has returned."""
+    global _again
+    if _again is not None and _again.is_alive():
+        return
+    _again = threading.Timer(AGAIN_S, os.kill, (os.getpid(), signum))
+    _again.daemon = True
+    _again.start()
 
 
 def install() -> None:
@@ -71,6 +108,8 @@ def install() -> None:
 def uninstall() -> None:
     """The handlers from before :func:`install` back (the command returns to a caller)."""
     global _armed, _pending, _received, _finished
+    if _again is not None:
+        _again.cancel()
     for sig, old in _installed.items():
         signal.signal(sig, old)
     _installed.clear()

@@ -112,13 +112,22 @@ if at == "exit":
     atexit.register(os.kill, os.getpid(), sig)
 elif at == "teardown":
     late = Late()
+elif at == "compiler":  # inside llvmlite's ctypes callback that asks numba for a kernel's object code
+    import numba.core.codegen as cg
+    from runners import interrupts
+    getbuffer, sent = cg.JITCodeLibrary._object_getbuffer_hook, []
+    def in_callback(cls, ll_module):
+        if interrupts._armed and not sent:  # the first kernel the run compiles or loads
+            sent.append(os.kill(os.getpid(), sig))
+        return getbuffer(ll_module)
+    cg.JITCodeLibrary._object_getbuffer_hook = classmethod(in_callback)
 else:
     sys.meta_path.insert(0, At())
 runpy.run_module("runners.cli", run_name="__main__", alter_sys=True)
 """
 
 
-@pytest.mark.parametrize("at", ["nrtraffic", "runners.api", "exit", "teardown"])
+@pytest.mark.parametrize("at", ["nrtraffic", "runners.api", "compiler", "exit", "teardown"])
 @pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM", "SIGHUP"])
 def test_a_signal_while_the_command_starts_or_exits_is_handled(at, sig, tmp_path):
     """The command's handlers were installed only after it had imported nrtraffic and the API's
@@ -127,7 +136,11 @@ def test_a_signal_while_the_command_starts_or_exits_is_handled(at, sig, tmp_path
     is imported waits for the run directory and stops the run there (exit 1, "failed" naming the
     signal); one after the command has returned its status, while the process exits, is noted and
     changes nothing: the run is complete. Late in the shut-down, the interpreter had put back the
-    default action (status 143 or 130 after an "ok" run): now the signal is ignored there."""
+    default action (status 143 or 130 after an "ok" run): now the signal is ignored there. One while
+    numba loaded the run's first kernel, inside llvmlite's callback, was raised there: ctypes
+    ignored the interrupt, LLVM got no object code and the process died of a segmentation fault
+    (status -11, its summary still "running"); now it is sent again until it lands outside, and
+    stops the run as any other."""
     out = tmp_path / "run"
     proc = subprocess.run([sys.executable, "-c", _SIGNAL_AT, sig, at, "run", str(CROSS4), "--duration", "10",
                            "--set", "outputs.warmup_s=0", "--out", str(out), "--no-progress"],
