@@ -32,8 +32,10 @@ class BicycleParams:
     v_blend_low, v_blend_high : float
         Low-speed treatment [m/s]: below ``v_blend_low`` the lateral and yaw dynamics are those of
         the kinematic bicycle model, above ``v_blend_high`` those of the dynamic model, smoothly
-        blended (C^1, smoothstep) in between. Forward Euler at 0.005 s is stable for the dynamic
-        model only above ~0.52 m/s (REFERENCE.md section 1), hence the defaults 0.5 / 1.5.
+        blended (C^1, smoothstep) in between. The dynamic model's lateral and yaw eigenvalues grow
+        as 1 / v_l: forward Euler at 0.005 s is stable for it alone only above about 0.65 m/s
+        (``bicycle.euler_step_limit_at``), hence the defaults 0.5 / 1.5, with which the blended
+        model is stable at steps up to 0.011 s at every speed.
     tau_kin : float
         Time constant [s] with which the kinematic model pulls lateral velocity and yaw rate to
         their kinematic (no-slip) values.
