@@ -444,8 +444,9 @@ def claim_run_dir(out: Path, sc: scenario_mod.Scenario, seed: int | None, durati
         # what the new run writes must not meet a file that no earlier run there created (the user's)
         ours = set(m["created"])
         # (every name a run may write or read: a stray fcd.xml would be read for its figures)
-        clash = sorted(n for n in {*RUN_FILES, *run_file_names(sc)} if n != "sumo" and (out / n).exists()
-                       and n not in ours)
+        # (a link counts, also one to nothing: the run would write where it points)
+        clash = sorted(n for n in {*RUN_FILES, *run_file_names(sc)} if n != "sumo" and n not in ours
+                       and ((out / n).is_symlink() or (out / n).exists()))
         if clash:
             raise ValueError(f"--out {out} holds {', '.join(clash)}, which no earlier run there created (files of your "
                              "own?): a run would write over them; choose another folder")

@@ -1307,6 +1307,23 @@ def test_force_keeps_a_users_file_named_like_one_the_run_did_not_write(tmp_path,
     assert (out / "arterial.png").read_text() == "mine too"
 
 
+def test_force_refuses_a_link_to_nothing_under_a_name_the_run_writes(tmp_path, capsys):
+    """A link to a file that does not exist, put into a finished run's folder under a name the run
+    writes (fcd.xml, which this run did not write): ``--force`` had taken the name for free and
+    written the file where the link points, outside the run folder. Refused (exit 2), naming it;
+    nothing is created at the link's target."""
+    base = ["run", str(CROSS4), "--duration", "5", "--set", "outputs.warmup_s=0", "--no-progress"]
+    out = tmp_path / "o"
+    assert main(base + ["--out", str(out)]) == 0
+    target = tmp_path / "elsewhere" / "x.xml"
+    target.parent.mkdir()
+    (out / "fcd.xml").symlink_to(target)
+    capsys.readouterr()
+    assert main(base + ["--set", "outputs.sumo_fcd=true", "--out", str(out), "--force"]) == 2
+    assert "fcd.xml" in capsys.readouterr().err
+    assert not target.exists() and (out / "fcd.xml").is_symlink()
+
+
 def test_a_run_killed_outright_can_be_replaced_with_force(tmp_path):
     """A run killed with SIGKILL as soon as its summary says "running" (no checkpoint, no clean-up):
     its manifest already lists the files it writes while it simulates, so ``--force`` replaces it;
