@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import platform
 import resource
 import subprocess
@@ -296,8 +297,29 @@ def scale_figure(rows: list[dict], path: Path) -> None:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, ncol=2)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    tmp = path.with_name(path.name + ".tmp")  # (whole or not at all; a link of that name is replaced, not followed)
+    fig.savefig(tmp, dpi=120, format="png", metadata={"Title": FIGURE_TITLE})
     plt.close(fig)
+    os.replace(tmp, path)
+
+
+FIGURE_TITLE = "nrtraffic scale benchmark"  # the PNG's Title, by which a later run knows its own figure
+
+
+def own_figure(figure: Path, table: Path) -> bool:
+    """Whether ``figure`` is a file an earlier ``bench --scale`` wrote: a regular file (not a link)
+    holding a PNG titled :data:`FIGURE_TITLE`, or (from before that title) a PNG that the
+    benchmark's own table beside it shows."""
+    if figure.is_symlink() or not figure.is_file():
+        return False
+    try:
+        data = figure.read_bytes()
+        shown = table.is_file() and f"]({figure.name})" in table.read_text(errors="replace")
+    except OSError:
+        return False
+    if not data.startswith(b"\x89PNG\r\n\x1a\n"):
+        return False
+    return b"tEXtTitle\x00" + FIGURE_TITLE.encode() in data or shown
 
 
 def scale_section(duration_s: float, figure: Path | None, district_hour: bool = True) -> list[str]:
@@ -471,11 +493,12 @@ def main(args) -> int:
     write = writable_file(args.write, own=BENCH_TITLES) if args.write else (Path(default) if default else None)
     if args.scale:
         figure = write.with_suffix(".png") if write is not None else None
-        if figure is not None and figure.exists() and not write.exists():  # (a figure of the user's, not a table's)
+        if figure is not None and os.path.lexists(figure) and not own_figure(figure, write):
             from runners.api import OutputError
 
             raise OutputError(f"--write {write}: the scale benchmark's figure goes beside it as {figure}, which "
-                              "exists and is no earlier benchmark's (no table beside it); choose another name")
+                              "exists and is no earlier benchmark's figure (a file of your own, or a link?); remove "
+                              "it, or choose another name")
         table = "\n".join([BENCH_TITLES[1], "", *scale_section(
             120.0 if args.quick else 600.0, figure, district_hour=not args.quick)]) + "\n"
     else:

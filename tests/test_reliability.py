@@ -1556,6 +1556,45 @@ def test_links_do_not_get_past_the_run_and_sweep_guards(tmp_path, capsys):
     assert "x.png, which exists" in capsys.readouterr().err and (tmp_path / "x.png").read_text() == "mine"
 
 
+def test_scale_bench_replaces_only_its_own_figure(tmp_path, capsys):
+    """``bench --scale --write T.md`` draws its figure as T.png. Beside its own earlier table it had
+    taken any T.png for its own: a file of the user's was written over, and a link was written
+    through (also one to nothing). Now those exit 2 before anything is measured, and nothing is
+    touched; the figure it draws is titled in the PNG, by which a later run knows it, and one from
+    before the title is known by the table that shows it."""
+    from runners.bench import BENCH_TITLES, own_figure, scale_figure
+
+    table = tmp_path / "T.md"
+    table.write_text(f"{BENCH_TITLES[1]}\n\n![cost](T.png)\n")
+    fig = tmp_path / "T.png"
+    fig.write_text("mine")
+    target = tmp_path / "elsewhere.png"
+    for case in ("text", "link to nothing", "link to a figure"):
+        if case != "text":
+            fig.unlink()
+            fig.symlink_to(target)
+        if case == "link to a figure":
+            scale_figure([{"at_once": 20.0, "loop_s": 1.0, "vehicle_steps": 1e4, "breakdown": {}, "junctions": 1}],
+                         target)
+        before = target.read_bytes() if target.exists() else None
+        capsys.readouterr()
+        assert main(["bench", "--quick", "--scale", "--write", str(table)]) == 2, case
+        assert "T.png, which exists" in capsys.readouterr().err
+        assert (target.read_bytes() if target.exists() else None) == before, case
+    assert fig.is_symlink() and table.read_text().startswith(BENCH_TITLES[1])
+    fig.unlink()
+    rows = [{"at_once": 20.0, "loop_s": 1.0, "vehicle_steps": 1e4, "breakdown": {"kernel": 0.4}, "junctions": 1}]
+    scale_figure(rows, fig)
+    assert own_figure(fig, tmp_path / "other.md")  # (titled: its own wherever its table is)
+    untitled = tmp_path / "U.png"
+    import matplotlib.pyplot as plt
+
+    plt.figure().savefig(untitled, format="png")
+    assert not own_figure(untitled, table)  # (a PNG of someone else's, not shown by the table)
+    table.write_text(f"{BENCH_TITLES[1]}\n\n![cost](U.png)\n")
+    assert own_figure(untitled, table)
+
+
 def test_gui_delay_without_gui_is_refused(tmp_path, capsys):
     """``--gui-delay`` without ``--gui`` would do nothing: exit 2 naming both (it ran, exit 0)."""
     assert main(["run", str(CROSS4), "--duration", "5", "--gui-delay", "50", "--out", str(tmp_path / "o"),
