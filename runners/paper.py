@@ -45,12 +45,17 @@ CBF_FILES = ("fig5_speeds.png", "fig6_distance.png", "fig7_lateral_deviation.png
              "paper_results.json")
 
 
-def _run_all(path: Path, runs: dict, seed, progress: bool) -> tuple[dict, dict, dict]:
+def _run_all(path: Path, runs: dict, seed, progress: bool, out: Path, files) -> tuple[dict, dict, dict]:
     """Every run of an experiment (``runs``: :func:`_curved_runs`, :func:`_cbf_runs`), each into
     its run directory, whose earlier run (:func:`claim_out` checked that it holds nothing else)
-    goes first; their summaries by table: the variants, the Euler predictor's, the horizon sweep."""
+    goes first; their summaries by table: the variants, the Euler predictor's, the horizon sweep.
+    The figures and tables of an earlier reproduction in ``out`` (``files``) go before any run: a
+    reproduction stopped halfway would leave them beside runs they do not describe."""
     from runners.single import remove_run_files
 
+    for name in files:
+        if (out / name).is_file() or (out / name).is_symlink():
+            (out / name).unlink()
     done = {"variants": {}, "euler": {}, "horizon": {}}
     for (table, key), (overrides, run_dir) in runs.items():
         if run_dir.is_dir():
@@ -122,7 +127,7 @@ def run_curved(out: Path, seed: int | None = None, progress: bool = True) -> dic
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     path = SCENARIOS / "paper_curved" / "scenario.toml"
-    results, euler, sweep = _run_all(path, _curved_runs(out), seed, progress)
+    results, euler, sweep = _run_all(path, _curved_runs(out), seed, progress, out, CURVED_FILES)
     base = scenario.load(path)
     # figures of the main run
     main = out / "curved"
@@ -263,7 +268,7 @@ def run_cbf(out: Path, seed: int | None = None, progress: bool = True) -> dict:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     path = SCENARIOS / "paper_cbf" / "scenario.toml"
-    results, euler, sweep = _run_all(path, _cbf_runs(out), seed, progress)
+    results, euler, sweep = _run_all(path, _cbf_runs(out), seed, progress, out, CBF_FILES)
     base = scenario.load(path)
     d0 = base.barriers.min_gap_m + base.vehicle.params().length
     tr = {k: _paper_time(read_trajectories(out / k)) for k in CBF_VARIANTS}

@@ -530,6 +530,7 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
     if todo and progress and any(j.control == NRTRAFFIC for j in todo):
         _kernel_cache.announce()  # (the workers compile them; they say nothing themselves)
     if todo:
+        withdraw_tables(out, (*TABLE_NAMES, *getattr(figures, "names", ())))
         # a worker that dies (e.g. killed by the OS) is one failure of that job, not three; and a
         # worker holds only the job it runs (saturation 1.0: the others wait at the scheduler), so
         # that its death counts against that job alone, not against one queued behind it
@@ -588,6 +589,23 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
     write_tables(df, out, figures)
     record_tables(out, written=True)
     return df
+
+
+def withdraw_tables(out: Path, names) -> list[str]:
+    """Remove the tables and figures (``names``) that an earlier pass wrote into ``out`` (its
+    manifest lists them), before runs are run or run again: they describe runs about to be
+    replaced, and a pass stopped halfway would leave them looking current beside its new runs. The
+    pass writes them anew at its end. Returns the names removed."""
+    from runners.single import read_manifest
+
+    m = read_manifest(out, sweep=True)
+    ours = set(m["created"]) - set(m["preexisting"]) if m is not None else set()
+    gone = []
+    for n in names:
+        if n in ours and ((out / n).is_file() or (out / n).is_symlink()):
+            (out / n).unlink()
+            gone.append(n)
+    return gone
 
 
 @contextlib.contextmanager

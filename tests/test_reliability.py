@@ -985,6 +985,53 @@ def test_a_sweep_stopped_while_it_writes_its_tables_resumes(tmp_path, monkeypatc
     assert (out / "sweep.csv").read_text() != "half" and (out / "report.html").is_file()
 
 
+def test_a_sweep_stopped_while_it_replaces_its_runs_leaves_no_table_of_the_old_ones(tmp_path, monkeypatch):
+    """A finished sweep run again with another configuration (--force) and stopped after its first
+    new run: its tables, figures and report had stayed, describing the old runs beside the new one,
+    with nothing to say so. They are removed before any run is replaced; the resume writes them
+    anew, of the new runs alone."""
+    from runners import sweep
+
+    flags = ["--seeds", "1:2", "--set", "outputs.warmup_s=0", "--no-progress", "--workers", "1"]
+    out = tmp_path / "study"
+    assert main(["sweep", str(CROSS4), "--out", str(out), "--duration", "5", *flags]) == 0
+    written = {"sweep.csv", "sweep.md", "sweep_summary.csv", "report.html", "sweep.png"}
+    assert written <= {p.name for p in out.iterdir()}
+    done = sweep.Progress.done
+
+    def stop_after_one(self, job, failed):
+        done(self, job, failed)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sweep.Progress, "done", stop_after_one)
+    assert main(["sweep", str(CROSS4), "--out", str(out), "--duration", "6", "--force", *flags]) == 1
+    assert not written & {p.name for p in out.iterdir()}
+    monkeypatch.setattr(sweep.Progress, "done", done)
+    assert main(["sweep", str(CROSS4), "--out", str(out), "--duration", "6", "--force", *flags]) == 0
+    df = pd.read_csv(out / "sweep.csv")
+    assert len(df) == 2 and (df["sim_time_s"] == 6).all() and (df["status"] == "ok").all()
+
+
+def test_a_reproduction_stopped_while_it_replaces_its_runs_leaves_no_table_of_the_old_ones(tmp_path, monkeypatch,
+                                                                                            capsys):
+    """``nrtraffic paper`` run again into its own earlier folder and stopped at its first run: the
+    earlier table, results and figures (here stand-ins of them, listed by its manifest) had stayed
+    beside runs they no longer describe. They go before the first run."""
+    from runners import paper
+
+    out = tmp_path / "cbf"
+    paper.claim_out(out, "cbf")  # (its manifest lists what the reproduction writes)
+    for name in paper.CBF_FILES:
+        (out / name).write_text("earlier")
+
+    def stopped(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(paper, "run_scenario", stopped)
+    assert main(["paper", "cbf", "--out", str(out), "--no-progress"]) == 1
+    assert not any((out / name).exists() for name in paper.CBF_FILES)
+
+
 @pytest.mark.parametrize("flags, message", [
     (["--grid", "demand.rate_veh_h=400,400.0"], "400 and 400.0 are the same value"),
     (["--baseline", "traffic_light,traffic_light"], "traffic_light is given twice"),
