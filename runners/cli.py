@@ -210,7 +210,9 @@ def _add_compare(sub) -> None:
     p.add_argument("run_dirs", type=_given_path, nargs="+", metavar="RUN_DIR",
                    help="run directories written by run or baseline (or a sweep's runs), two or more")
     p.add_argument("--out", type=_folder, default=None, metavar="DIR",
-                   help="where to write the report (default: runs/<scenario>-compare); an empty or new folder")
+                   help="where to write the report (default: runs/<scenario>-compare): not a run directory, and "
+                        "not a folder that already holds compare.html or compare_*.csv (see --force); other "
+                        "files in it are left alone")
     p.add_argument("--force", action="store_true",
                    help="replace the comparison's own files (compare.html, compare_*.csv) in a folder that holds "
                         "them; nothing else in it is touched")
