@@ -66,7 +66,7 @@ def min_or_none(values):
     return float(vals.min()) if vals.size else None
 
 
-# HCM level of service by control delay per vehicle [s] (REFERENCE.md section 6): upper bounds of
+# HCM level of service by control delay per vehicle [s] (Highway Capacity Manual, 6th ed.): upper bounds of
 # A..E; above the last, F
 LOS_SIGNALISED = (10.0, 20.0, 35.0, 55.0, 80.0)
 LOS_UNSIGNALISED = (10.0, 15.0, 25.0, 35.0, 50.0)

@@ -251,7 +251,7 @@ def test_baseline_delay_agrees_with_sumo_time_loss(junction, tmp_path):
 def test_an_unhindered_vehicle_loses_no_more_than_physics_requires(movement, tmp_path):
     """A lone vehicle, bound by nothing but its own earliest arrival: its delay is at most 0.5 s
     above cruising at the entry speed, braking at |u_min| to its crossing speed just in time and
-    crossing the merging zone at it (REFERENCE.md section 6)."""
+    crossing the merging zone at it (docs/method.md)."""
     from conftest import copy_scenario
 
     d = copy_scenario("cross4", tmp_path / "scen", "rate_veh_h = 400.0", "rate_veh_h = 0.0\nmean_headway_s = 0.0",
@@ -311,7 +311,7 @@ def test_conflict_points_reserve_the_areas_not_the_zone():
     (55.0, True, "D"), (79.0, True, "E"), (81.0, True, "F"),
 ])
 def test_level_of_service_thresholds_are_the_hcm_ones(delay, signalised, letter):
-    # REFERENCE.md section 6: signalised A <= 10 < B <= 20 < C <= 35 < D <= 55 < E <= 80 < F;
+    # Highway Capacity Manual: signalised A <= 10 < B <= 20 < C <= 35 < D <= 55 < E <= 80 < F;
     # unsignalised A <= 10 < B <= 15 < C <= 25 < D <= 35 < E <= 50 < F
     from nrtraffic.metrics import level_of_service
 

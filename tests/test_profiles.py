@@ -139,7 +139,7 @@ def test_fixed_terminal_with_the_speed_bound_matches_discretised_qp(v0, T):
 
 
 def test_earliest_fixed_arrival_is_time_optimal_and_close_to_braking_at_the_bound():
-    """REFERENCE.md section 6: 400 m, 13.89 -> 8 m/s, |u_min| = 3: T = 29.35 s. At that time the arc's
+    """400 m, 13.89 -> 8 m/s, |u_min| = 3: T = 29.35 s. At that time the arc's
     deceleration reaches |u_min|, a moment earlier no profile fits, and it loses at most 0.5 s
     against cruising and braking at constant |u_min| just in time."""
     b = B_JUNCTION

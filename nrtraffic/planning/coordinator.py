@@ -1,4 +1,4 @@
-"""Merge-time assignment by arrival at the control zone (REFERENCE.md s. 3 and 6): first in, first
+"""Merge-time assignment by arrival at the control zone (docs/junction-control.md): first in, first
 out, or in batches whose order is chosen (:meth:`Coordinator.schedule_batch`).
 
 For vehicle ``i`` arriving at ``t0`` with speed ``v0``, ``D`` metres before the merging zone::

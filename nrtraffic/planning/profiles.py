@@ -2,7 +2,7 @@
 
 Double integrator ``p' = v, v' = u``; cost ``J = 1/2 int u^2`` from control-zone entry (local time
 ``tau = 0``, position 0, speed ``v0``) to merging-zone entry (``tau = T``, position ``D``).
-REFERENCE.md section 3; units: [m], [s], [m/s], [m/s^2].
+Malikopoulos, Cassandras and Zhang, Automatica 2018; units: [m], [s], [m/s], [m/s^2].
 
 Free terminal speed (the paper's case, ``u(T) = 0``): ``u = a (tau - T)``, ``a = 3 (v0 T - D)/T^3``,
 ``v_m = (3 D / T - v0) / 2``, ``J = 3 (D - v0 T)^2 / (2 T^3)``. With bounds the optimum is
@@ -26,7 +26,7 @@ d2^2 / s2)`` for the distance ``D = v_max T - (d1 s1 + d2 s2) / 3``), ``mu = 3 (
 (d1^1.5 + d2^1.5)``; their peak accelerations are ``2 d_i / s_i``. The other bounds are checked.
 The earliest such arrival (:func:`earliest_fixed`) puts the binding arc's peak acceleration on its
 bound: for ``v0 = v_max``, ``s2 = 2 (v0 - v_m) / |u_min|`` and ``T = (D + s2 (v0 - v_m) / 3) / v0``
-(REFERENCE.md section 6).
+(docs/method.md).
 
 After ``T`` every profile continues at constant speed (the vehicle crosses the merging zone at
 constant speed).

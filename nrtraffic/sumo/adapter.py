@@ -6,7 +6,8 @@ refuses to start while another session of the process is open.
 Poses are pushed with ``moveToXY(keepRoute=3)``: bit 0 keeps the vehicle on its route (on the
 route's internal lanes, too), bit 1 places the front bumper at the exact position, lateral offset
 included, with or without the sublane model (``keepRoute=1`` needs the sublane model for that and
-snaps to the lane centre without it: REFERENCE.md section 5). Without sublanes SUMO's step costs
+snaps to the lane centre without it: TraCI's moveToXY documentation, and
+``tests/test_sumo_adapter.py``). Without sublanes SUMO's step costs
 about a third less (docs/performance.md). The true speed is set beside it (``setSpeedMode 0`` +
 ``setSpeed``), so that SUMO's timeLoss and the cars behind see the real speed.
 """

@@ -45,7 +45,7 @@ def build_network(nodes: Path, edges: Path, output: Path, extra_args: list[str] 
     """Run netconvert on plain XML and write ``output`` (.net.xml).
 
     Uses ``--no-turnarounds`` and ``--offset.disable-normalization`` so that network coordinates
-    equal the coordinates of the plain XML (REFERENCE.md section 5), and 4 decimals.
+    equal the coordinates of the plain XML (netconvert's documentation), and 4 decimals.
     """
     cmd = [
         sumo_binary("netconvert"),

@@ -1,5 +1,5 @@
-"""Fuel model of the vehicle: Kamal et al.'s polynomial as used by this line of work (REFERENCE.md
-section 3), in mL/s with ``v`` [m/s] and ``u`` [m/s^2]; the acceleration term counts only for
+"""Fuel model of the vehicle: Kamal et al.'s polynomial as used by this line of work (Malikopoulos
+et al. 2018), in mL/s with ``v`` [m/s] and ``u`` [m/s^2]; the acceleration term counts only for
 ``u > 0``. The compiled kernel integrates it every plant step; the engine, for vehicles SUMO
 drives, every SUMO step."""
 
