@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nrtraffic.scenario import TURNS
+from nrtraffic.scenario import TURNS, top_speed
 
 
 def shifted_exponential_arrivals(rng: np.random.Generator, begin_s: float, end_s: float, mean_headway_s: float,
@@ -342,7 +342,7 @@ class Demand:
         from nrtraffic.sumo.adapter import VehicleType, write_routes
 
         demand = self.departures()
-        v_max = max(self.sc.planning.v_max_mps, 1.0)
+        v_max = top_speed(self.sc)
         types = [VehicleType(length_m=params.length, width_m=params.width, max_speed_mps=v_max)]
         if any(v[5] == "human" for v in demand):
             h = self.sc.human

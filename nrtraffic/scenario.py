@@ -617,11 +617,16 @@ def _euler_step_limit(params: tuple, v_max: float) -> tuple[float, float]:
     return euler_step_limit(np.array(params), v_max)
 
 
+def top_speed(sc: "Scenario") -> float:
+    """The vehicles' top speed [m/s]: ``planning.v_max_mps``, at least 1 m/s; their type's maxSpeed
+    in SUMO (:mod:`nrtraffic.demand`)."""
+    return max(sc.planning.v_max_mps, 1.0)
+
+
 def plant_step_limit(sc: "Scenario") -> tuple[float, float]:
     """The longest stable ``controller.plant_step_s`` [s] for the scenario's vehicle over its speeds
-    (up to ``planning.v_max_mps``, the controlled type's maxSpeed in SUMO), and the speed [m/s]
-    that sets it."""
-    return _euler_step_limit(tuple(sc.vehicle.params().as_array()), max(sc.planning.v_max_mps, 1.0))
+    (up to :func:`top_speed`), and the speed [m/s] that sets it."""
+    return _euler_step_limit(tuple(sc.vehicle.params().as_array()), top_speed(sc))
 
 
 def _missing(path: Path) -> str:
@@ -937,7 +942,7 @@ def from_dict(data: dict, base_dir: Path, overrides: list[str] | tuple[str, ...]
     if ratio > MAX_PLANT_STEPS_PER_STEP + 1e-9:
         raise ScenarioError(f"sumo.step_length_s / controller.plant_step_s = {ratio:.0f} plant steps per SUMO step, "
                             f"more than {MAX_PLANT_STEPS_PER_STEP}: raise controller.plant_step_s")
-    v_top = max(sc.planning.v_max_mps, 1.0)  # the vehicle type's maxSpeed in SUMO (demand.py)
+    v_top = top_speed(sc)
     h_max, v_at = plant_step_limit(sc)
     if sc.controller.plant_step_s > h_max:
         need = (f"controller.plant_step_s = {sc.controller.plant_step_s:g} s is too long for the plant's forward-Euler "
