@@ -1632,6 +1632,10 @@ def test_scale_bench_replaces_only_its_own_figure(tmp_path, capsys):
     fig.unlink()
     rows = [{"at_once": 20.0, "loop_s": 1.0, "vehicle_steps": 1e4, "breakdown": {"kernel": 0.4}, "junctions": 1}]
     scale_figure(rows, fig)
+    from PIL import Image
+
+    with Image.open(fig) as png:  # (the title as a PNG reader sees it)
+        assert png.text.get("Title") == "nrtraffic scale benchmark"
     assert own_figure(fig, tmp_path / "other.md")  # (titled: its own wherever its table is)
     untitled = tmp_path / "U.png"
     import matplotlib.pyplot as plt
