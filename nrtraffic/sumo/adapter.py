@@ -17,6 +17,7 @@ from __future__ import annotations
 import functools
 
 import math
+import operator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -250,6 +251,7 @@ class SumoSession:
 
         self._vars = (tc.VAR_LANE_ID, tc.VAR_LANEPOSITION, tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED,
                       tc.VAR_ACCELERATION)
+        self._pick = operator.itemgetter(*self._vars)  # a subscription result -> its values in that order
 
     # ---- life cycle
     def start(self) -> "SumoSession":
@@ -394,13 +396,16 @@ class SumoSession:
         (updated by every step)."""
         res = self.traci.vehicle.getAllSubscriptionResults()
         ids = list(res)
-        kl, kp, kxy, ka, kv, kacc = self._vars
-        rows = res.values()
-        lane = [r[kl] for r in rows]
-        num = np.array([(r[kp], *r[kxy], r[ka], r[kv], r[kacc]) for r in rows], dtype=float).reshape(-1, 6)
-        ang = np.radians(num[:, 3])
+        if not ids:
+            none = np.zeros(0)
+            return VehicleTable(ids, [], none, none, none, none, none, none, {})
+        # one tuple per vehicle in the order of self._vars, transposed to one tuple per variable
+        lane, lane_pos, xy, nav, speed, accel = zip(*map(self._pick, res.values()))
+        num = np.array((lane_pos, nav, speed, accel), dtype=float)
+        xy = np.array(xy, dtype=float)
+        ang = np.radians(num[1])
         psi = np.arctan2(np.cos(ang), np.sin(ang))  # navigation angle -> heading (heading_from_nav)
-        return VehicleTable(ids, lane, num[:, 0], num[:, 1], num[:, 2], psi, num[:, 4], num[:, 5],
+        return VehicleTable(ids, list(lane), num[0], xy[:, 0], xy[:, 1], psi, num[2], num[3],
                             dict(zip(ids, range(len(ids)))))
 
     def arrived(self) -> tuple[str, ...]:
