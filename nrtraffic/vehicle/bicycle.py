@@ -247,18 +247,31 @@ def simulate(x0, u, p, h, n_steps):
 @njit(cache=True, error_model="numpy")
 def rhs_tangent(x, c, s, a, d, cd, sd, td, p, P, f, dP):
     """``f(x, u)`` of eq. (1) and ``dP = f_x(x, u) P + f_u(x, u)`` in one pass (the predictor's
-    sensitivity recursion, :mod:`nrtraffic.control.nr_flow`).
+    sensitivity recursion, :mod:`nrtraffic.control.nr_flow`), on arrays: :func:`rhs_tangent_s`
+    with the state ``x`` (6,), the sensitivity ``P`` (6, 2) read and ``f`` (6,), ``dP`` (6, 2)
+    written. Rows 0 and 1 of ``P`` (positions) feed nothing back and are not read."""
+    r = rhs_tangent_s(x[2], x[3], x[5], c, s, a, d, cd, sd, td, p,
+                      P[2, 0], P[2, 1], P[3, 0], P[3, 1], P[4, 0], P[4, 1], P[5, 0], P[5, 1])
+    for i in range(6):
+        f[i] = r[i]
+        dP[i, 0] = r[6 + 2 * i]
+        dP[i, 1] = r[7 + 2 * i]
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def rhs_tangent_s(vl, vn, r, c, s, a, d, cd, sd, td, p, p20, p21, p30, p31, p40, p41, p50, p51):
+    """``f(x, u)`` of eq. (1) and ``dP = f_x(x, u) P + f_u(x, u)`` in one pass, on scalars (so
+    that the predictor's RK4 stages stay in registers).
 
     The same maths as :func:`dynamics` and :func:`jacobians`, fused: the two tyre atans are
-    evaluated once, the heading's ``c, s`` (cos, sin of ``x[4]``) and the steering's ``cd, sd, td``
+    evaluated once, the heading's ``c, s`` (cos, sin of ``psi``) and the steering's ``cd, sd, td``
     (cos, sin, tan of ``d`` [rad]; constant while the input is held) come from the caller, and only
-    the 15 non-zero entries of ``f_x`` enter the product. ``P`` (6, 2): sensitivity of the state to ``u = (a, d)``;
-    ``f`` (6,) and ``dP`` (6, 2) are written. Rows 0 and 1 of ``P`` (positions) feed nothing back
-    and are not read.
+    the 15 non-zero entries of ``f_x`` enter the product. ``vl, vn`` [m/s], ``r`` [rad/s]: the
+    state's speeds and yaw rate (the positions and the heading enter only through ``c, s``);
+    ``pij``: row ``i`` (2-5), column ``j`` of ``P`` (6, 2), the sensitivity of the state to
+    ``u = (a, d)``. Returns ``(f_0, ..., f_5, dP_00, dP_01, dP_10, ..., dP_51)``: ``f`` then ``dP``
+    row by row.
     """
-    vl = x[2]
-    vn = x[3]
-    r = x[5]
     m = p[_M]
     Iz = p[_IZ]
     lf = p[_LF]
@@ -272,10 +285,6 @@ def rhs_tangent(x, c, s, a, d, cd, sd, td, p, P, f, dP):
     f0 = vl * c - vn * s
     f1 = vl * s + vn * c
     vl_dot = r * vn + a
-    f[0] = f0
-    f[1] = f1
-    f[2] = vl_dot
-    f[4] = r
     w, dw = blend_weight(vl, p)
     wk = 1.0 - w
     # row 3 (v_n) and row 5 (psi_dot) of f_x, f_u: A3*, A5*, B3*, B5*
@@ -328,21 +337,11 @@ def rhs_tangent(x, c, s, a, d, cd, sd, td, p, P, f, dP):
         A55 += wk * (vn * tL - itau)
         B50 += wk * tL
         B51 += wk * (sec2 * iL * (vl_dot + vl * itau))
-    f[3] = f3
-    f[5] = f5
-    for j in range(2):
-        p2 = P[2, j]
-        p3 = P[3, j]
-        p4 = P[4, j]
-        p5 = P[5, j]
-        dP[0, j] = c * p2 - s * p3 - f1 * p4
-        dP[1, j] = s * p2 + c * p3 + f0 * p4
-        dP[2, j] = r * p3 + vn * p5
-        dP[3, j] = A32 * p2 + A33 * p3 + A35 * p5
-        dP[4, j] = p5
-        dP[5, j] = A52 * p2 + A53 * p3 + A55 * p5
-    dP[2, 0] += 1.0
-    dP[3, 0] += B30
-    dP[3, 1] += B31
-    dP[5, 0] += B50
-    dP[5, 1] += B51
+    # dP = f_x P + f_u, row by row (f_u's entries added last)
+    return (f0, f1, vl_dot, f3, r, f5,
+            c * p20 - s * p30 - f1 * p40, c * p21 - s * p31 - f1 * p41,
+            s * p20 + c * p30 + f0 * p40, s * p21 + c * p31 + f0 * p41,
+            r * p30 + vn * p50 + 1.0, r * p31 + vn * p51,
+            A32 * p20 + A33 * p30 + A35 * p50 + B30, A32 * p21 + A33 * p31 + A35 * p51 + B31,
+            p50, p51,
+            A52 * p20 + A53 * p30 + A55 * p50 + B50, A52 * p21 + A53 * p31 + A55 * p51 + B51)
