@@ -118,10 +118,7 @@ def predict(x, u, p, horizon, dt_pred, method, g, J, ws, wsP):
     cd = math.cos(d)
     sd = math.sin(d)
     td = math.tan(d)
-    if method == EULER:
-        _euler(xi, P, n, h, a, d, cd, sd, td, p)
-    else:
-        _rk4(xi, P, n, h, a, d, cd, sd, td, p)
+    _integrate(xi, P, n, h, a, d, cd, sd, td, p, method)
     g[0] = xi[0]
     g[1] = xi[1]
     J[0, 0] = P[0, 0]
@@ -131,75 +128,55 @@ def predict(x, u, p, horizon, dt_pred, method, g, J, ws, wsP):
 
 
 @njit(cache=True, error_model="numpy")
-def _euler(xi, P, n, h, a, d, cd, sd, td, p):
-    """``n`` forward-Euler steps of ``h`` [s] of the state ``xi`` (6,) and its sensitivity ``P``
-    (6, 2) under the held input (in place; :func:`predict`), on scalars as :func:`_rk4`. A car
-    standing under a braking input holds its state (the plant does not reverse), while ``P`` takes
-    its step, so that ``dg/du`` says how far releasing the brake would take it."""
-    x0, x1, x2, x3, x4, x5 = xi[0], xi[1], xi[2], xi[3], xi[4], xi[5]
-    P00, P01, P10, P11, P20, P21 = P[0, 0], P[0, 1], P[1, 0], P[1, 1], P[2, 0], P[2, 1]
-    P30, P31, P40, P41, P50, P51 = P[3, 0], P[3, 1], P[4, 0], P[4, 1], P[5, 0], P[5, 1]
-    for _ in range(n):
-        standing = x2 <= 0.0 and a + x5 * x3 <= 0.0
-        (k0, k1, k2, k3, k4, k5, e00, e01, e10, e11, e20, e21, e30, e31, e40, e41, e50, e51) = rhs_tangent_s(
-            x2, x3, x5, math.cos(x4), math.sin(x4), a, d, cd, sd, td, p, P20, P21, P30, P31, P40, P41, P50, P51)
-        P00 += h * e00; P01 += h * e01; P10 += h * e10; P11 += h * e11; P20 += h * e20; P21 += h * e21
-        P30 += h * e30; P31 += h * e31; P40 += h * e40; P41 += h * e41; P50 += h * e50; P51 += h * e51
-        if not standing:
-            x0 += h * k0; x1 += h * k1; x2 += h * k2; x3 += h * k3; x4 += h * k4; x5 += h * k5
-            if x2 < 0.0:  # as the plant: it brakes to a stop, it does not reverse
-                x2 = 0.0
-    xi[0], xi[1], xi[2], xi[3], xi[4], xi[5] = x0, x1, x2, x3, x4, x5
-    P[0, 0], P[0, 1], P[1, 0], P[1, 1], P[2, 0], P[2, 1] = P00, P01, P10, P11, P20, P21
-    P[3, 0], P[3, 1], P[4, 0], P[4, 1], P[5, 0], P[5, 1] = P30, P31, P40, P41, P50, P51
-
-
-@njit(cache=True, error_model="numpy")
-def _rk4(xi, P, n, h, a, d, cd, sd, td, p):
-    """``n`` RK4 steps of ``h`` [s] of the state ``xi`` (6,) and its sensitivity ``P`` (6, 2) under
-    the held input (in place; :func:`predict`). The stages are scalars, so that they stay in
-    registers: each stage's ``f`` is ``k0..k5`` and its ``f_x P + f_u`` ``e00..e51`` (row, column);
-    ``s*`` and ``q*`` sum them with RK4's weights."""
+def _integrate(xi, P, n, h, a, d, cd, sd, td, p, method):
+    """``n`` steps of ``h`` [s] (EULER or RK4) of the state ``xi`` (6,) and its sensitivity ``P``
+    (6, 2) under the held input (in place; :func:`predict`). The steps run on scalars, so that
+    they stay in registers: a stage's ``f`` is ``k0..k5`` and its ``f_x P + f_u`` ``e00..e51``
+    (row, column); ``s*`` and ``q*`` sum RK4's stages with their weights. A car standing under a
+    braking input holds its state (the plant does not reverse), while ``P`` takes an Euler step, so
+    that ``dg/du`` says how far releasing the brake would take it."""
     x0, x1, x2, x3, x4, x5 = xi[0], xi[1], xi[2], xi[3], xi[4], xi[5]
     P00, P01, P10, P11, P20, P21 = P[0, 0], P[0, 1], P[1, 0], P[1, 1], P[2, 0], P[2, 1]
     P30, P31, P40, P41, P50, P51 = P[3, 0], P[3, 1], P[4, 0], P[4, 1], P[5, 0], P[5, 1]
     hh = 0.5 * h
     h6 = h / 6.0
     for _ in range(n):
-        if x2 <= 0.0 and a + x5 * x3 <= 0.0:  # standing under a braking input (as in _euler)
-            (k0, k1, k2, k3, k4, k5, e00, e01, e10, e11, e20, e21, e30, e31, e40, e41, e50, e51) = rhs_tangent_s(
-                x2, x3, x5, math.cos(x4), math.sin(x4), a, d, cd, sd, td, p, P20, P21, P30, P31, P40, P41, P50, P51)
-            P00 += h * e00; P01 += h * e01; P10 += h * e10; P11 += h * e11; P20 += h * e20; P21 += h * e21
-            P30 += h * e30; P31 += h * e31; P40 += h * e40; P41 += h * e41; P50 += h * e50; P51 += h * e51
-            continue
-        # stage 1 at xi
+        standing = x2 <= 0.0 and a + x5 * x3 <= 0.0
+        # Euler's step, and RK4's first stage, at xi
         (k0, k1, k2, k3, k4, k5, e00, e01, e10, e11, e20, e21, e30, e31, e40, e41, e50, e51) = rhs_tangent_s(
             x2, x3, x5, math.cos(x4), math.sin(x4), a, d, cd, sd, td, p, P20, P21, P30, P31, P40, P41, P50, P51)
-        s0, s1, s2, s3, s4, s5 = k0, k1, k2, k3, k4, k5
-        q00, q01, q10, q11, q20, q21, q30, q31, q40, q41, q50, q51 = (
-            e00, e01, e10, e11, e20, e21, e30, e31, e40, e41, e50, e51)
-        # stages 2 and 3 at xi + h/2 K (the previous stage's), weight 2
-        for _stage in range(2):
-            y4 = x4 + hh * k4
+        if standing or method == EULER:
+            P00 += h * e00; P01 += h * e01; P10 += h * e10; P11 += h * e11; P20 += h * e20; P21 += h * e21
+            P30 += h * e30; P31 += h * e31; P40 += h * e40; P41 += h * e41; P50 += h * e50; P51 += h * e51
+            if standing:
+                continue
+            x0 += h * k0; x1 += h * k1; x2 += h * k2; x3 += h * k3; x4 += h * k4; x5 += h * k5
+        else:
+            s0, s1, s2, s3, s4, s5 = k0, k1, k2, k3, k4, k5
+            q00, q01, q10, q11, q20, q21, q30, q31, q40, q41, q50, q51 = (
+                e00, e01, e10, e11, e20, e21, e30, e31, e40, e41, e50, e51)
+            # stages 2 and 3 at xi + h/2 K (the previous stage's), weight 2
+            for _stage in range(2):
+                y4 = x4 + hh * k4
+                (k0, k1, k2, k3, k4, k5, e00, e01, e10, e11, e20, e21, e30, e31, e40, e41, e50, e51) = rhs_tangent_s(
+                    x2 + hh * k2, x3 + hh * k3, x5 + hh * k5, math.cos(y4), math.sin(y4), a, d, cd, sd, td, p,
+                    P20 + hh * e20, P21 + hh * e21, P30 + hh * e30, P31 + hh * e31,
+                    P40 + hh * e40, P41 + hh * e41, P50 + hh * e50, P51 + hh * e51)
+                s0 += 2.0 * k0; s1 += 2.0 * k1; s2 += 2.0 * k2; s3 += 2.0 * k3; s4 += 2.0 * k4; s5 += 2.0 * k5
+                q00 += 2.0 * e00; q01 += 2.0 * e01; q10 += 2.0 * e10; q11 += 2.0 * e11
+                q20 += 2.0 * e20; q21 += 2.0 * e21; q30 += 2.0 * e30; q31 += 2.0 * e31
+                q40 += 2.0 * e40; q41 += 2.0 * e41; q50 += 2.0 * e50; q51 += 2.0 * e51
+            # stage 4 at xi + h K_3
+            y4 = x4 + h * k4
             (k0, k1, k2, k3, k4, k5, e00, e01, e10, e11, e20, e21, e30, e31, e40, e41, e50, e51) = rhs_tangent_s(
-                x2 + hh * k2, x3 + hh * k3, x5 + hh * k5, math.cos(y4), math.sin(y4), a, d, cd, sd, td, p,
-                P20 + hh * e20, P21 + hh * e21, P30 + hh * e30, P31 + hh * e31,
-                P40 + hh * e40, P41 + hh * e41, P50 + hh * e50, P51 + hh * e51)
-            s0 += 2.0 * k0; s1 += 2.0 * k1; s2 += 2.0 * k2; s3 += 2.0 * k3; s4 += 2.0 * k4; s5 += 2.0 * k5
-            q00 += 2.0 * e00; q01 += 2.0 * e01; q10 += 2.0 * e10; q11 += 2.0 * e11
-            q20 += 2.0 * e20; q21 += 2.0 * e21; q30 += 2.0 * e30; q31 += 2.0 * e31
-            q40 += 2.0 * e40; q41 += 2.0 * e41; q50 += 2.0 * e50; q51 += 2.0 * e51
-        # stage 4 at xi + h K_3
-        y4 = x4 + h * k4
-        (k0, k1, k2, k3, k4, k5, e00, e01, e10, e11, e20, e21, e30, e31, e40, e41, e50, e51) = rhs_tangent_s(
-            x2 + h * k2, x3 + h * k3, x5 + h * k5, math.cos(y4), math.sin(y4), a, d, cd, sd, td, p,
-            P20 + h * e20, P21 + h * e21, P30 + h * e30, P31 + h * e31,
-            P40 + h * e40, P41 + h * e41, P50 + h * e50, P51 + h * e51)
-        x0 += h6 * (s0 + k0); x1 += h6 * (s1 + k1); x2 += h6 * (s2 + k2)
-        x3 += h6 * (s3 + k3); x4 += h6 * (s4 + k4); x5 += h6 * (s5 + k5)
-        P00 += h6 * (q00 + e00); P01 += h6 * (q01 + e01); P10 += h6 * (q10 + e10); P11 += h6 * (q11 + e11)
-        P20 += h6 * (q20 + e20); P21 += h6 * (q21 + e21); P30 += h6 * (q30 + e30); P31 += h6 * (q31 + e31)
-        P40 += h6 * (q40 + e40); P41 += h6 * (q41 + e41); P50 += h6 * (q50 + e50); P51 += h6 * (q51 + e51)
+                x2 + h * k2, x3 + h * k3, x5 + h * k5, math.cos(y4), math.sin(y4), a, d, cd, sd, td, p,
+                P20 + h * e20, P21 + h * e21, P30 + h * e30, P31 + h * e31,
+                P40 + h * e40, P41 + h * e41, P50 + h * e50, P51 + h * e51)
+            x0 += h6 * (s0 + k0); x1 += h6 * (s1 + k1); x2 += h6 * (s2 + k2)
+            x3 += h6 * (s3 + k3); x4 += h6 * (s4 + k4); x5 += h6 * (s5 + k5)
+            P00 += h6 * (q00 + e00); P01 += h6 * (q01 + e01); P10 += h6 * (q10 + e10); P11 += h6 * (q11 + e11)
+            P20 += h6 * (q20 + e20); P21 += h6 * (q21 + e21); P30 += h6 * (q30 + e30); P31 += h6 * (q31 + e31)
+            P40 += h6 * (q40 + e40); P41 += h6 * (q41 + e41); P50 += h6 * (q50 + e50); P51 += h6 * (q51 + e51)
         if x2 < 0.0:  # as the plant: it brakes to a stop, it does not reverse
             x2 = 0.0
     xi[0], xi[1], xi[2], xi[3], xi[4], xi[5] = x0, x1, x2, x3, x4, x5
