@@ -261,7 +261,7 @@ def rhs_tangent(x, c, s, a, d, cd, sd, td, p, P, f, dP):
 @njit(cache=True, error_model="numpy", inline="always")
 def rhs_tangent_s(vl, vn, r, c, s, a, d, cd, sd, td, p, p20, p21, p30, p31, p40, p41, p50, p51):
     """``f(x, u)`` of eq. (1) and ``dP = f_x(x, u) P + f_u(x, u)`` in one pass, on scalars (so
-    that the predictor's RK4 stages stay in registers).
+    that the predictor's steps stay in registers).
 
     The same maths as :func:`dynamics` and :func:`jacobians`, fused: the two tyre atans are
     evaluated once, the heading's ``c, s`` (cos, sin of ``psi``) and the steering's ``cd, sd, td``
