@@ -395,10 +395,11 @@ def run_all(quick: bool = False) -> str:
     dur = 120.0 if quick else 600.0
     cross = ROOT / "sumo_scenarios" / "cross4" / "scenario.toml"
     # the first run of a process also imports the run's modules and loads every compiled kernel from
-    # numba's cache (a sweep's workers pay this once): measured in a process of its own, and a short
-    # run here first, so that the runs below time the simulation alone
-    first, again = bench_first_runs()
+    # numba's cache (a sweep's workers pay this once): measured in a process of its own, after a short
+    # run here, which fills the cache where an edit emptied it (the fresh process then loads, not
+    # compiles) and lets the runs below time the simulation alone
     bench_run(cross, 30.0)
+    first, again = bench_first_runs()
     n_pairs = 1 if quick else PAIRS
     runs = [bench_run(cross, dur, pairs=n_pairs, floor=True),
             bench_run(cross, dur, ("demand.rate_veh_h=600",), pairs=n_pairs),
