@@ -56,8 +56,9 @@ _V_FLOOR = 0.1  # as in the model's tyre terms [m/s]
 
 @njit(cache=True)
 def new_workspace():
-    """Scratch for :func:`predict` and :func:`nr_update`: ``(vectors (8, 6), matrices (6, 6, 2))``."""
-    return np.zeros((8, 6)), np.zeros((6, 6, 2))
+    """Scratch for :func:`predict` and :func:`nr_update`: ``(vectors (4, 6), matrices (2, 6, 2))``:
+    the predicted state, ``g``, the error and the step; the sensitivity and ``J``."""
+    return np.zeros((4, 6)), np.zeros((2, 6, 2))
 
 
 @njit(cache=True, error_model="numpy")
@@ -216,8 +217,8 @@ def nr_update(x, u, p_pred, ref_future, horizon, dt_pred, method, alpha, damping
     along-path error the barrier holds open.
     Returns the prediction error ``|r(t+T) - g|`` [m].
     """
-    g, e, du = ws[4], ws[5], ws[6]
-    J = wsP[4]
+    g, e, du = ws[1], ws[2], ws[3]
+    J = wsP[1]
     predict(x, u, p_pred, horizon, dt_pred, method, g, J, ws, wsP)
     e[0] = ref_future[0] - g[0]
     e[1] = ref_future[1] - g[1]
