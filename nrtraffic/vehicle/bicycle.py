@@ -267,7 +267,7 @@ def rhs_tangent_s(vl, vn, r, c, s, a, d, cd, sd, td, p, p20, p21, p30, p31, p40,
     evaluated once, the heading's ``c, s`` (cos, sin of ``psi``) and the steering's ``cd, sd, td``
     (cos, sin, tan of ``d`` [rad]; constant while the input is held) come from the caller, and only
     the 15 non-zero entries of ``f_x`` enter the product. ``vl, vn`` [m/s], ``r`` [rad/s]: the
-    state's speeds and yaw rate (the positions and the heading enter only through ``c, s``);
+    state's speeds and yaw rate (the positions do not enter, the heading only through ``c, s``);
     ``pij``: row ``i`` (2-5), column ``j`` of ``P`` (6, 2), the sensitivity of the state to
     ``u = (a, d)``. Returns ``(f_0, ..., f_5, dP_00, dP_01, dP_10, ..., dP_51)``: ``f`` then ``dP``
     row by row.
