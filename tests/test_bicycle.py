@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from nrtraffic.vehicle.bicycle import dynamics, euler_step_limit, euler_step_limit_at, jacobians, rhs_tangent, simulate
+from nrtraffic.vehicle.bicycle import dynamics, euler_step_limit, euler_step_limit_at, jacobians, rhs_tangent_s, simulate
 from nrtraffic.vehicle.params import BicycleParams, preset
 
 P = preset("paper")
@@ -45,7 +45,7 @@ def test_jacobians_match_finite_differences(vl):
 
 @pytest.mark.parametrize("vl", [15.0, 3.0, 1.4, 1.0, 0.7, 0.3, 0.0])
 def test_fused_tangent_equals_dynamics_and_jacobian_product(vl):
-    # rhs_tangent is dynamics + f_x P + f_u in one pass, using only f_x's non-zero entries
+    # rhs_tangent_s is dynamics + f_x P + f_u in one pass, using only f_x's non-zero entries
     rng = np.random.default_rng(100 + int(vl * 10))
     for _ in range(10):
         x = np.array([rng.normal(), rng.normal(), vl, 0.05 * rng.normal() * max(vl, 0.1), rng.uniform(-3, 3),
@@ -54,8 +54,9 @@ def test_fused_tangent_equals_dynamics_and_jacobian_product(vl):
         P = rng.normal(size=(6, 2))
         fx, fu = np.empty((6, 6)), np.empty((6, 2))
         jacobians(x, np.array([a, d]), p, fx, fu)
-        f, dP = np.empty(6), np.empty((6, 2))
-        rhs_tangent(x, math.cos(x[4]), math.sin(x[4]), a, d, math.cos(d), math.sin(d), math.tan(d), p, P, f, dP)
+        r = rhs_tangent_s(x[2], x[3], x[5], math.cos(x[4]), math.sin(x[4]), a, d, math.cos(d), math.sin(d),
+                          math.tan(d), p, *P[2:].ravel())  # rows 2-5 of P, row by row
+        f, dP = np.array(r[:6]), np.array(r[6:]).reshape(6, 2)
         assert np.allclose(f, _f(x, [a, d]), rtol=1e-13, atol=1e-13)
         ref = fx @ P + fu
         assert np.allclose(dP, ref, rtol=1e-12, atol=1e-12 * (1 + np.abs(ref).max()))

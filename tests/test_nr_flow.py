@@ -16,7 +16,7 @@ p2 = P.with_mass_factor(2.0).as_array()
 
 def _g(x, u, params=p, T=0.2, dt=0.001, method=EULER):
     g, J = np.empty(2), np.empty((2, 2))
-    predict(np.asarray(x, float), np.asarray(u, float), params, T, dt, method, g, J, *new_workspace())
+    predict(np.asarray(x, float), np.asarray(u, float), params, T, dt, method, g, J)
     return g, J
 
 
@@ -159,14 +159,13 @@ def test_prediction_stops_at_standstill_and_does_not_reverse():
     the acceleration column of the sensitivity stays positive (the flow can release the brake)."""
     import numpy as np
 
-    from nrtraffic.control.nr_flow import RK4, new_workspace, predict
+    from nrtraffic.control.nr_flow import RK4, predict
     from nrtraffic.vehicle.params import preset
 
     p = preset("paper").as_array()
-    ws, wsP = new_workspace()
     g, J = np.zeros(2), np.zeros((2, 2))
     for v0, a in ((1.0, -6.0), (2.0, -3.0), (0.0, -1.0)):
-        predict(np.array([0.0, 0.0, v0, 0.0, 0.0, 0.0]), np.array([a, 0.0]), p, 8.0, 0.1, RK4, g, J, ws, wsP)
+        predict(np.array([0.0, 0.0, v0, 0.0, 0.0, 0.0]), np.array([a, 0.0]), p, 8.0, 0.1, RK4, g, J)
         stop = v0 * v0 / (2.0 * abs(a))
         assert stop - 0.1 * v0 <= g[0] <= stop + 1e-9 and abs(g[1]) < 1e-9
         assert J[0, 0] > 0.0

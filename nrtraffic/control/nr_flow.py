@@ -35,8 +35,9 @@ regularised as damped least squares ``(J^T J + lambda I)^-1 J^T`` with
 ``lambda = damping * trace(J^T J)`` (scale-free; ``damping`` ~1e-6 leaves a well-conditioned
 ``J`` untouched).
 
-Units: positions [m], time [s], ``u = (a_l [m/s^2], delta_f [rad])``. The compiled functions take a
-workspace (:func:`new_workspace`) so that nothing is allocated per call.
+Units: positions [m], time [s], ``u = (a_l [m/s^2], delta_f [rad])``. The predictor works on
+scalars and :func:`nr_update` on a workspace (:func:`new_workspace`), so that nothing is allocated
+per call.
 """
 
 from __future__ import annotations
@@ -56,9 +57,9 @@ _V_FLOOR = 0.1  # as in the model's tyre terms [m/s]
 
 @njit(cache=True)
 def new_workspace():
-    """Scratch for :func:`predict` and :func:`nr_update`: ``(vectors (4, 6), matrices (2, 6, 2))``:
-    the predicted state, ``g``, the error and the step; the sensitivity and ``J``."""
-    return np.zeros((4, 6)), np.zeros((2, 6, 2))
+    """Scratch for :func:`nr_update`: ``(vectors (3, 2), matrix (2, 2))``: the prediction ``g``, the
+    error and the step; ``J``."""
+    return np.zeros((3, 2)), np.zeros((2, 2))
 
 
 @njit(cache=True, error_model="numpy")
@@ -92,7 +93,7 @@ def predictor_steps(vl, p, horizon, dt_pred, method):
 
 
 @njit(cache=True, error_model="numpy")
-def predict(x, u, p, horizon, dt_pred, method, g, J, ws, wsP):
+def predict(x, u, p, horizon, dt_pred, method, g, J):
     """Predictor of eqs. (13)-(14) with its exact sensitivity.
 
     Parameters
@@ -105,45 +106,27 @@ def predict(x, u, p, horizon, dt_pred, method, g, J, ws, wsP):
     method : EULER or RK4.
     g : (2,) output, predicted position ``(z1, z2)(t+T)`` [m].
     J : (2, 2) or larger output, ``dg/du`` [m per (m/s^2), m per rad] in its top-left block.
-    ws, wsP : workspace from :func:`new_workspace`.
+
+    The steps run on scalars, so that they stay in registers: the state ``x0..x5``, the
+    sensitivity ``P00..P51`` (row, column; zero at t), a stage's ``f`` ``k0..k5`` and its
+    ``f_x P + f_u`` ``e00..e51``; ``s*`` and ``q*`` sum RK4's stages with their weights. A car
+    standing under a braking input holds its state (the plant does not reverse), while ``P`` takes
+    an Euler step, so that ``dg/du`` says how far releasing the brake would take it.
     """
     n = predictor_steps(x[2], p, horizon, dt_pred, method)
     h = horizon / n
-    xi, P = ws[0], wsP[0]
-    for i in range(6):
-        xi[i] = x[i]
-        for j in range(2):
-            P[i, j] = 0.0
     a = u[0]
     d = u[1]
     cd = math.cos(d)
     sd = math.sin(d)
     td = math.tan(d)
-    _integrate(xi, P, n, h, a, d, cd, sd, td, p, method)
-    g[0] = xi[0]
-    g[1] = xi[1]
-    J[0, 0] = P[0, 0]
-    J[0, 1] = P[0, 1]
-    J[1, 0] = P[1, 0]
-    J[1, 1] = P[1, 1]
-
-
-@njit(cache=True, error_model="numpy")
-def _integrate(xi, P, n, h, a, d, cd, sd, td, p, method):
-    """``n`` steps of ``h`` [s] (EULER or RK4) of the state ``xi`` (6,) and its sensitivity ``P``
-    (6, 2) under the held input (in place; :func:`predict`). The steps run on scalars, so that
-    they stay in registers: a stage's ``f`` is ``k0..k5`` and its ``f_x P + f_u`` ``e00..e51``
-    (row, column); ``s*`` and ``q*`` sum RK4's stages with their weights. A car standing under a
-    braking input holds its state (the plant does not reverse), while ``P`` takes an Euler step, so
-    that ``dg/du`` says how far releasing the brake would take it."""
-    x0, x1, x2, x3, x4, x5 = xi[0], xi[1], xi[2], xi[3], xi[4], xi[5]
-    P00, P01, P10, P11, P20, P21 = P[0, 0], P[0, 1], P[1, 0], P[1, 1], P[2, 0], P[2, 1]
-    P30, P31, P40, P41, P50, P51 = P[3, 0], P[3, 1], P[4, 0], P[4, 1], P[5, 0], P[5, 1]
+    x0, x1, x2, x3, x4, x5 = x[0], x[1], x[2], x[3], x[4], x[5]
+    P00 = P01 = P10 = P11 = P20 = P21 = P30 = P31 = P40 = P41 = P50 = P51 = 0.0
     hh = 0.5 * h
     h6 = h / 6.0
     for _ in range(n):
         standing = x2 <= 0.0 and a + x5 * x3 <= 0.0
-        # Euler's step, and RK4's first stage, at xi
+        # Euler's step, and RK4's first stage, at the step's start
         (k0, k1, k2, k3, k4, k5, e00, e01, e10, e11, e20, e21, e30, e31, e40, e41, e50, e51) = rhs_tangent_s(
             x2, x3, x5, math.cos(x4), math.sin(x4), a, d, cd, sd, td, p, P20, P21, P30, P31, P40, P41, P50, P51)
         if standing or method == EULER:
@@ -156,7 +139,7 @@ def _integrate(xi, P, n, h, a, d, cd, sd, td, p, method):
             s0, s1, s2, s3, s4, s5 = k0, k1, k2, k3, k4, k5
             q00, q01, q10, q11, q20, q21, q30, q31, q40, q41, q50, q51 = (
                 e00, e01, e10, e11, e20, e21, e30, e31, e40, e41, e50, e51)
-            # stages 2 and 3 at xi + h/2 K (the previous stage's), weight 2
+            # stages 2 and 3 at the start + h/2 K (the previous stage's), weight 2
             for _stage in range(2):
                 y4 = x4 + hh * k4
                 (k0, k1, k2, k3, k4, k5, e00, e01, e10, e11, e20, e21, e30, e31, e40, e41, e50, e51) = rhs_tangent_s(
@@ -167,7 +150,7 @@ def _integrate(xi, P, n, h, a, d, cd, sd, td, p, method):
                 q00 += 2.0 * e00; q01 += 2.0 * e01; q10 += 2.0 * e10; q11 += 2.0 * e11
                 q20 += 2.0 * e20; q21 += 2.0 * e21; q30 += 2.0 * e30; q31 += 2.0 * e31
                 q40 += 2.0 * e40; q41 += 2.0 * e41; q50 += 2.0 * e50; q51 += 2.0 * e51
-            # stage 4 at xi + h K_3
+            # stage 4 at the start + h K_3
             y4 = x4 + h * k4
             (k0, k1, k2, k3, k4, k5, e00, e01, e10, e11, e20, e21, e30, e31, e40, e41, e50, e51) = rhs_tangent_s(
                 x2 + h * k2, x3 + h * k3, x5 + h * k5, math.cos(y4), math.sin(y4), a, d, cd, sd, td, p,
@@ -180,9 +163,12 @@ def _integrate(xi, P, n, h, a, d, cd, sd, td, p, method):
             P40 += h6 * (q40 + e40); P41 += h6 * (q41 + e41); P50 += h6 * (q50 + e50); P51 += h6 * (q51 + e51)
         if x2 < 0.0:  # as the plant: it brakes to a stop, it does not reverse
             x2 = 0.0
-    xi[0], xi[1], xi[2], xi[3], xi[4], xi[5] = x0, x1, x2, x3, x4, x5
-    P[0, 0], P[0, 1], P[1, 0], P[1, 1], P[2, 0], P[2, 1] = P00, P01, P10, P11, P20, P21
-    P[3, 0], P[3, 1], P[4, 0], P[4, 1], P[5, 0], P[5, 1] = P30, P31, P40, P41, P50, P51
+    g[0] = x0
+    g[1] = x1
+    J[0, 0] = P00
+    J[0, 1] = P01
+    J[1, 0] = P10
+    J[1, 1] = P11
 
 
 @njit(cache=True, error_model="numpy")
@@ -217,9 +203,9 @@ def nr_update(x, u, p_pred, ref_future, horizon, dt_pred, method, alpha, damping
     along-path error the barrier holds open.
     Returns the prediction error ``|r(t+T) - g|`` [m].
     """
-    g, e, du = ws[1], ws[2], ws[3]
-    J = wsP[1]
-    predict(x, u, p_pred, horizon, dt_pred, method, g, J, ws, wsP)
+    g, e, du = ws[0], ws[1], ws[2]
+    J = wsP
+    predict(x, u, p_pred, horizon, dt_pred, method, g, J)
     e[0] = ref_future[0] - g[0]
     e[1] = ref_future[1] - g[1]
     nr_direction(J, e, damping, du)

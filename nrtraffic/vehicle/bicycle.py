@@ -244,24 +244,11 @@ def simulate(x0, u, p, h, n_steps):
     return out
 
 
-@njit(cache=True, error_model="numpy")
-def rhs_tangent(x, c, s, a, d, cd, sd, td, p, P, f, dP):
-    """``f(x, u)`` of eq. (1) and ``dP = f_x(x, u) P + f_u(x, u)`` in one pass (the predictor's
-    sensitivity recursion, :mod:`nrtraffic.control.nr_flow`), on arrays: :func:`rhs_tangent_s`
-    with the state ``x`` (6,), the sensitivity ``P`` (6, 2) read and ``f`` (6,), ``dP`` (6, 2)
-    written. Rows 0 and 1 of ``P`` (positions) feed nothing back and are not read."""
-    r = rhs_tangent_s(x[2], x[3], x[5], c, s, a, d, cd, sd, td, p,
-                      P[2, 0], P[2, 1], P[3, 0], P[3, 1], P[4, 0], P[4, 1], P[5, 0], P[5, 1])
-    for i in range(6):
-        f[i] = r[i]
-        dP[i, 0] = r[6 + 2 * i]
-        dP[i, 1] = r[7 + 2 * i]
-
-
 @njit(cache=True, error_model="numpy", inline="always")
 def rhs_tangent_s(vl, vn, r, c, s, a, d, cd, sd, td, p, p20, p21, p30, p31, p40, p41, p50, p51):
-    """``f(x, u)`` of eq. (1) and ``dP = f_x(x, u) P + f_u(x, u)`` in one pass, on scalars (so
-    that the predictor's steps stay in registers).
+    """``f(x, u)`` of eq. (1) and ``dP = f_x(x, u) P + f_u(x, u)`` in one pass (the predictor's
+    sensitivity recursion, :mod:`nrtraffic.control.nr_flow`), on scalars, so that the predictor's
+    steps stay in registers.
 
     The same maths as :func:`dynamics` and :func:`jacobians`, fused: the two tyre atans are
     evaluated once, the heading's ``c, s`` (cos, sin of ``psi``) and the steering's ``cd, sd, td``
