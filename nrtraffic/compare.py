@@ -290,12 +290,13 @@ def write(c: Comparison, out: Path) -> list[Path]:
     """``compare.html``, ``compare_runs.csv``, ``compare_movements.csv`` and
     ``compare_approaches.csv`` in ``out``."""
     from nrtraffic.report import _page, _table, corridor_tables
+    from nrtraffic.results import to_csv
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     paths = [out / "compare_runs.csv", out / "compare_movements.csv", out / "compare_approaches.csv"]
     for p, t in zip(paths, (c.headline, c.movements, c.approaches)):
-        t.to_csv(p, index=False)
+        to_csv(t, p)
     labels = list(c.headline["run"])
     body = [f"<p class='note'>{html.escape(NOTE)}</p>"]
     body += [f"<p class='warn'>{html.escape(n)}</p>" for n in c.notes]

@@ -180,6 +180,7 @@ RESOLUTIONS = (
     ("_veh_h", 1),  # flows [veh/h]: 0.1
     ("share", 4), ("_frac", 4),  # shares and fractions: 0.0001
     ("_mps2", 3), ("_mps", 3),  # accelerations [m/s^2], speeds [m/s]: 0.001
+    ("error_m", 5), ("_dev_m", 5),  # tracking errors and lateral deviations [m]: 0.01 mm (the paper's are mm)
     ("_s", 3), ("_m", 3),  # times and durations [s], lengths and positions [m]: 0.001
     ("_veh", 3), ("_ml", 3), ("_u2", 3), ("_per_vehicle", 3), ("_factor", 3),  # queues, fuel, energy, means
 )
@@ -328,11 +329,23 @@ def parse_queues(path: Path, t0_s: float = 0.0) -> pd.DataFrame:
     return df.groupby(["approach", "begin_s", "end_s"], as_index=False).sum()
 
 
+def to_csv(table: pd.DataFrame, path) -> None:
+    """``table`` as CSV, its numbers rounded to their resolutions (:func:`round_frame`) and written
+    positionally (0.00009, not 9e-05); empty cells for missing values."""
+    def positional(v):
+        return np.format_float_positional(v, trim="0") if isinstance(v, float) and math.isfinite(v) else v
+
+    df = round_frame(table)
+    for c in df.columns:
+        if pd.api.types.is_float_dtype(df[c]) or df[c].dtype == object:
+            df[c] = df[c].map(positional).astype(object)
+    df.to_csv(path, index=False)
+
+
 def write_table(path: Path, table: pd.DataFrame) -> None:
-    """A CSV table, its numbers rounded to their resolutions (:func:`round_frame`), written under a
-    temporary name and renamed when whole."""
+    """A CSV table (:func:`to_csv`) written under a temporary name and renamed when whole."""
     tmp = Path(path).with_suffix(".csv.tmp")
-    round_frame(table).to_csv(tmp, index=False)
+    to_csv(table, tmp)
     tmp.replace(path)
 
 

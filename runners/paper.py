@@ -223,7 +223,7 @@ def _curved_table(r: dict, sweep: dict, base, euler: dict) -> str:
     lines += _predictor_section(r, euler, [
         ("transient tracking error", "transient_tracking_error_m", cm),
         ("steady-state tracking error", "steady_tracking_error_m", cm),
-        ("max abs acceleration [m/s^2]", "max_abs_accel_mps2", lambda x: f"{x:.4f}"),
+        ("max abs acceleration [m/s^2]", "max_abs_accel_mps2", lambda x: f"{x:.3f}"),
         ("max lateral deviation", "max_lateral_dev_m", cm),
         ("collisions", "collisions", lambda x: f"{x:d}"),
         ("vehicles completing", "vehicles_completed", lambda x: f"{x:d}"),
@@ -351,10 +351,11 @@ def _cbf_table(r: dict, sweep: dict, base, d0: float, tr: dict, euler: dict) -> 
     for T, sm in list(sweep.items()) + [(base.controller.horizon_s, wo)]:
         lines.append(f"| {T} | {sm['max_lateral_dev_m']:.3f} m | {sm['collisions']} |")
     m = lambda x: f"{x:.4f} m"  # noqa: E731
+    mm = lambda x: f"{x:.3f} m"  # noqa: E731  (distances and gaps are written to 1 mm)
     lines += _predictor_section(r, euler, [
         ("peak lateral deviation", "max_lateral_dev_m", m),
-        ("min centre distance", "min_center_distance_m", m),
-        ("min bumper gap", "min_bumper_gap_m", m),
+        ("min centre distance", "min_center_distance_m", mm),
+        ("min bumper gap", "min_bumper_gap_m", mm),
         ("collisions (SUMO)", "collisions", lambda x: f"{x:d}"),
         ("max tracking error", "max_tracking_error_m", m),
     ], base)

@@ -684,11 +684,11 @@ def summarize(df: pd.DataFrame) -> pd.DataFrame:
 def write_tables(df: pd.DataFrame, out: Path, figures=sweep_figures) -> None:
     """sweep.csv, sweep_summary.csv, sweep.md (the study table and the safety table), the figures
     that ``figures(df, summary, out)`` draws and report.html with all of them."""
-    from nrtraffic.results import round_frame
+    from nrtraffic.results import to_csv
 
-    round_frame(df).to_csv(out / "sweep.csv", index=False)
+    to_csv(df, out / "sweep.csv")
     summ = summarize(df)
-    round_frame(summ).to_csv(out / "sweep_summary.csv", index=False)
+    to_csv(summ, out / "sweep_summary.csv")
     tables = [table(summ, df)]
     snote, stab = safety_table(df)
     if len(stab):
@@ -707,7 +707,7 @@ def write_tables(df: pd.DataFrame, out: Path, figures=sweep_figures) -> None:
 
         keys = grid_keys(df)
         for name, (heading, by, side_table) in zip(("sweep_approaches.csv", "sweep_movements.csv"), side):
-            side_table.to_csv(out / name, index=False)
+            to_csv(side_table, out / name)
             figs = [c for c in side_table.columns if c not in set(keys + by + ["control"])]
             grouped = html_grouped(side_table.astype({k: str for k in keys}), keys + by, figs, label="control")
             sections.append((heading, SIDE_NOTE, grouped))
