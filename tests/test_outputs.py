@@ -113,11 +113,12 @@ def _numbers(obj):
 def test_no_float_noise_and_numbers_at_their_resolution(runs, name):
     """No number in vehicles.csv, movements.csv, approaches.csv or summary.json lies in
     (0, 1e-9) in magnitude, and none has more decimals than its figure's resolution (times,
-    positions and speeds 0.001, flows 0.1 veh/h, shares 0.0001)."""
+    positions and speeds 0.001, tracking errors and lateral deviations 0.00001 m, flows 0.1 veh/h,
+    shares 0.0001)."""
     run_dir = runs[name]
-    assert {"t_exit_s": 3, "v_enter_mps": 3, "throughput_veh_h": 1, "served_share": 4, "min_bumper_gap_m": 3}\
-        == {k: decimals_of(k) for k in ("t_exit_s", "v_enter_mps", "throughput_veh_h", "served_share",
-                                        "min_bumper_gap_m")}
+    expected = {"t_exit_s": 3, "v_enter_mps": 3, "throughput_veh_h": 1, "served_share": 4, "min_bumper_gap_m": 3,
+                "max_tracking_error_m": 5, "steady_tracking_error_m": 5, "max_lateral_dev_m": 5}
+    assert expected == {k: decimals_of(k) for k in expected}
     checked = 0
     for f in ("vehicles.csv", "movements.csv", "approaches.csv"):
         df = pd.read_csv(run_dir / f)
@@ -188,3 +189,16 @@ def test_replay_allows_a_last_digit_of_rounding_and_no_more():
     assert compare_summaries({"mean_delay_s": 1.234}, {"mean_delay_s": 1.235}) == []
     assert len(compare_summaries({"mean_delay_s": 1.234}, {"mean_delay_s": 1.236})) == 1
     assert len(compare_summaries({"throughput_veh_h": 960.0}, {"throughput_veh_h": 960.2})) == 1
+
+
+def test_tables_are_written_positionally_at_their_resolutions(tmp_path):
+    """to_csv rounds each column to its figure's resolution and writes no exponent: a tracking
+    error of 0.000094 m is 0.00009, a delay of 2.5e-14 s is 0.0, a missing value an empty cell."""
+    from nrtraffic.results import to_csv
+
+    t = pd.DataFrame({"vehicle_id": ["a", "b"], "max_tracking_error_m": [0.000094, 0.0123456],
+                      "delay_s": [2.5e-14, float("nan")], "throughput_veh_h": [1234.56, 7.0]})
+    to_csv(t, tmp_path / "t.csv")
+    lines = (tmp_path / "t.csv").read_text().splitlines()
+    assert lines == ["vehicle_id,max_tracking_error_m,delay_s,throughput_veh_h",
+                     "a,0.00009,0.0,1234.6", "b,0.01235,,7.0"]
