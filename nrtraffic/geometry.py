@@ -2,8 +2,9 @@
 
 A :class:`LanePath` maps arc length ``s`` [m] along a vehicle's path to position ``(x, y)`` [m] and
 heading [rad, counter-clockwise from +x], and projects a point back to ``(s, signed lateral offset)``
-(positive to the left of the direction of travel). Pure numpy; the compiled kernels use the packed
-arrays through :func:`path_point_near`, :func:`project_local` and :func:`segment_frames`.
+(positive to the left of the direction of travel). The compiled kernels use the packed arrays
+through :func:`path_point_near`, :func:`project_local` and :func:`segment_frames`;
+:meth:`LanePath.project` is :func:`project_local` over the whole path.
 """
 
 from __future__ import annotations
@@ -88,21 +89,8 @@ class LanePath:
         :attr:`length`.
         """
         q = np.asarray(point, dtype=np.float64)
-        a = self.xy[:-1]
-        d = self.xy[1:] - a
-        seg2 = np.einsum("ij,ij->i", d, d)
-        t = np.einsum("ij,ij->i", q - a, d) / seg2
-        t_in = np.clip(t, 0.0, 1.0)
-        # allow extrapolation on the first and last segment only
-        t_in[0] = min(t[0], 1.0)
-        t_in[-1] = max(t[-1], 0.0)
-        foot = a + t_in[:, None] * d
-        dist2 = np.einsum("ij,ij->i", q - foot, q - foot)
-        k = int(np.argmin(dist2))
-        seg = np.sqrt(seg2[k])
-        s = self.s[k] + t_in[k] * seg
-        cross = d[k, 0] * (q[1] - a[k, 1]) - d[k, 1] * (q[0] - a[k, 0])
-        return float(s), float(cross / seg)
+        s, lateral, _ = project_local(self.xy, self.s, float(q[0]), float(q[1]), 0, 0, len(self.s) - 2)
+        return float(s), float(lateral)
 
 
 SMOOTH_MAX_SEGMENT_M = 2.0  # longest segment the spline sees [m]

@@ -35,6 +35,29 @@ def test_projection_round_trips(smooth):
         assert s3 == pytest.approx(s2, abs=1e-9) and lat3 == pytest.approx(lat2, abs=1e-9)
 
 
+def test_projection_is_the_nearest_point_of_the_path():
+    """Against a brute-force search over points 1 cm apart along a winding path: the projection's
+    point is at least as near as the nearest of them, and no more than 1 cm nearer."""
+    rng = np.random.default_rng(5)
+    path = LanePath.from_points(np.cumsum(rng.normal(size=(12, 2)) * 15.0, axis=0), smooth_spacing=0.5)
+    dense = path.xy_at(np.arange(0.0, path.length, 0.01))
+    lo, hi = path.xy.min(axis=0), path.xy.max(axis=0)
+    for q in rng.uniform(lo, hi, size=(300, 2)):
+        near = np.hypot(*(dense - q).T).min()
+        s, _ = path.project(q)
+        d = float(np.hypot(*(path.xy_at(s) - q)))
+        if 0.0 < s < path.length:
+            assert d <= near + 1e-9 and near - d <= 0.01
+
+
+@pytest.mark.parametrize("points", [[(0, 0), (10, 0)], [(0, 0), (5, 0), (10, 0)]])
+def test_projection_extends_the_first_and_last_segment(points):
+    """Before the start ``s`` is negative, past the end above the length (one segment or more)."""
+    path = LanePath.from_points(points)
+    assert path.project((-3.0, 1.0)) == pytest.approx((-3.0, 1.0))
+    assert path.project((14.0, -2.0)) == pytest.approx((14.0, -2.0))
+
+
 def test_smoothed_path_passes_through_the_vertices_and_stays_on_the_circle():
     pts = _arc(44)  # 10 m chords
     path = LanePath.from_points(pts, smooth_spacing=0.25)
