@@ -450,6 +450,11 @@ class SumoSession:
                 lane = target
         return out
 
+    def edge_length(self, edge: str) -> float:
+        """Length of an edge's longest lane [m]."""
+        t = self.traci
+        return max(t.lane.getLength(f"{edge}_{i}") for i in range(t.edge.getLaneNumber(edge)))
+
     def lane_speed(self, lane: str) -> float:
         """Speed limit of a lane [m/s] (on junction-internal lanes SUMO derives it from the curvature)."""
         return self.traci.lane.getMaxSpeed(lane)
