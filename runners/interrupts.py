@@ -39,7 +39,7 @@ _received: int | None = None  # the signal that interrupted the run (armed), for
 _finished = False  # the command has its exit status: a signal is noted, never raised
 
 
-AGAIN_S = 0.1  # a signal that came while numba compiled is sent again after this [s]
+AGAIN_S = 0.01  # a signal that came while numba compiled is sent again after this [s]
 
 # the signals handled: termination, Ctrl-C, and the terminal closing (SIGHUP, where there is one)
 SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGINT", "SIGHUP") if hasattr(signal, name))
