@@ -283,7 +283,7 @@ def scale_figure(rows: list[dict], path: Path) -> None:
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     x = [r["at_once"] for r in rows]
     ax.plot(x, [1e6 * r["loop_s"] / r["vehicle_steps"] for r in rows], "o-", color="k", label="whole loop")
-    for k in ("kernel", "sumo_step", "sumo_io", "admission", "leaders", "collision_check"):
+    for k in LOOP_PHASES:  # (the table's columns, so that the phases add up to the whole loop)
         ax.plot(x, [1e6 * r["breakdown"].get(k, 0.0) / r["vehicle_steps"] for r in rows], ".--", label=k)
     for r in rows:
         ax.annotate(f"{r['junctions']}", (r["at_once"], 1e6 * r["loop_s"] / r["vehicle_steps"]),
