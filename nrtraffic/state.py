@@ -33,7 +33,6 @@ class RunState:
     itineraries: dict = field(default_factory=dict)  # a corridor trip's route -> its turning movements
     reservations: dict = field(default_factory=dict)  # human driver -> (its reserved crossing, its bounds)
     mixed: bool = False  # human drivers take part (demand.controlled_share < 1, or a file's other types)
-    exit_edges: dict = field(default_factory=dict)  # movement -> the roads a queue past its zone can be on (junction.exits)
 
     def __post_init__(self):
         if self.life is None:

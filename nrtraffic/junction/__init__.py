@@ -50,6 +50,9 @@ class Movement:
     v_limit: float = math.inf  # lowest lane speed limit along the path (SUMO's turn speeds) [m/s]
     route_name: str = ""
     junction: str = ""
+    # the roads of the path (not the junction's own lanes) on which a car's front, on any of their
+    # lanes, can lie past s_exit: where a queue can block its exit (nrtraffic.junction.exits)
+    exit_edges: frozenset = frozenset()
 
     def s_of(self, lane: str, pos: float) -> float:
         off, scale = self.lane_offset[lane]

@@ -130,8 +130,11 @@ def build_paths(sc, layout: Layout, sumo, params, control: bool) -> tuple[dict[s
             check_turn_radius(name, path, s_c, s_x, params, sc.controller.steer_max_rad)
         v_lim = min(sumo.lane_speed(ln) for ln, _, _ in lanes) if j.xy is not None else math.inf
         v_lim = min(v_lim, curve_speed(path, s_m, s_x, sc.planning.max_lateral_accel_mps2))
+        roads = {ln: ln.rsplit("_", 1)[0] for ln, _, _ in lanes if not ln.startswith(":")}
+        exit_edges = frozenset(e for ln, e in roads.items()
+                               if offsets[ln][0] + sumo.edge_length(e) * offsets[ln][1] > s_x)
         out[name] = Movement(name, appr, turn, route, path, [ln for ln, _, _ in lanes], offsets, s_c, s_m, s_x,
-                             v_lim, rname, j.id)
+                             v_lim, rname, j.id, exit_edges)
         j.movements.append(name)
     if zone_cuts:
         print(f"{sc.general.name}: control zones reach back past where routes start or past the junction "

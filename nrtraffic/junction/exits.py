@@ -40,23 +40,6 @@ def _queued_edges(snap) -> set[str]:
     return found
 
 
-def _exit_edges(st, mv) -> frozenset[str]:
-    """The roads of movement ``mv``'s path (not the junction's own lanes) on which a vehicle's front,
-    on any of their lanes, can lie past the merging zone's exit: the only roads where
-    :func:`blocked` can find a queue. Worked out once per movement."""
-    found = st.exit_edges.get(mv.name)
-    if found is None:
-        edges = set()
-        for lane in mv.lanes:
-            if lane.startswith(":"):
-                continue
-            off, scale = mv.lane_offset[lane]
-            if off + st.sumo.edge_length(_edge(lane)) * scale > mv.s_exit:
-                edges.add(_edge(lane))
-        found = st.exit_edges[mv.name] = frozenset(edges)
-    return found
-
-
 def blocked(st, vid: str) -> str | None:
     """The vehicle that blocks ``vid``'s exit (the module's docstring), or None. ``vid`` is on its
     movement's path before or at its merging zone; vehicles behind it do not count, and each
@@ -67,7 +50,7 @@ def blocked(st, vid: str) -> str | None:
     mv = st.paths[rec.movement]
     snap = st.snap
     queued = _queued_edges(snap)
-    if queued.isdisjoint(_exit_edges(st, mv)):  # (no vehicle past the zone that could queue)
+    if queued.isdisjoint(mv.exit_edges):  # (no vehicle past the zone that could queue)
         return None
     s_self = st.cg_on_path(vid)
     if s_self is None:
