@@ -350,14 +350,14 @@ def _cbf_table(r: dict, sweep: dict, base, d0: float, tr: dict, euler: dict) -> 
     ]
     for T, sm in list(sweep.items()) + [(base.controller.horizon_s, wo)]:
         lines.append(f"| {T} | {sm['max_lateral_dev_m']:.3f} m | {sm['collisions']} |")
-    m = lambda x: f"{x:.4f} m"  # noqa: E731
-    mm = lambda x: f"{x:.3f} m"  # noqa: E731  (distances and gaps are written to 1 mm)
+    m4 = lambda x: f"{x:.4f} m"  # noqa: E731
+    m3 = lambda x: f"{x:.3f} m"  # noqa: E731  (distances and gaps are written to 1 mm)
     lines += _predictor_section(r, euler, [
-        ("peak lateral deviation", "max_lateral_dev_m", m),
-        ("min centre distance", "min_center_distance_m", mm),
-        ("min bumper gap", "min_bumper_gap_m", mm),
+        ("peak lateral deviation", "max_lateral_dev_m", m4),
+        ("min centre distance", "min_center_distance_m", m3),
+        ("min bumper gap", "min_bumper_gap_m", m3),
         ("collisions (SUMO)", "collisions", lambda x: f"{x:d}"),
-        ("max tracking error", "max_tracking_error_m", m),
+        ("max tracking error", "max_tracking_error_m", m4),
     ], base)
     return "\n".join(lines) + "\n"
 

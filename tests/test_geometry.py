@@ -42,12 +42,15 @@ def test_projection_is_the_nearest_point_of_the_path():
     path = LanePath.from_points(np.cumsum(rng.normal(size=(12, 2)) * 15.0, axis=0), smooth_spacing=0.5)
     dense = path.xy_at(np.arange(0.0, path.length, 0.01))
     lo, hi = path.xy.min(axis=0), path.xy.max(axis=0)
+    inside = 0
     for q in rng.uniform(lo, hi, size=(300, 2)):
         near = np.hypot(*(dense - q).T).min()
         s, _ = path.project(q)
         d = float(np.hypot(*(path.xy_at(s) - q)))
         if 0.0 < s < path.length:
             assert d <= near + 1e-9 and near - d <= 0.01
+            inside += 1
+    assert inside > 200  # (points beyond the ends project onto the extended end segments)
 
 
 @pytest.mark.parametrize("points", [[(0, 0), (10, 0)], [(0, 0), (5, 0), (10, 0)]])
