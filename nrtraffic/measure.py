@@ -15,7 +15,9 @@ from nrtraffic.geometry import touching_pairs
 from nrtraffic.lifecycle import SUMO_DRIVEN, State
 from nrtraffic.vehicle.fuel import fuel_rate
 
-LEADER_LOOKAHEAD_M = 200.0  # how far along its path a vehicle looks for its leader [m]
+# how far along its path a vehicle looks for its leader [m], counted from the start of the lane it is on
+# (nrtraffic.control.leaders.find_leaders): on a longer lane it does not look past that lane
+LEADER_LOOKAHEAD_M = 200.0
 
 
 def track_sumo_driven(st, dt: float, next_leg) -> list[str]:
