@@ -8,7 +8,7 @@ STAMP  := $(VENV)/.installed
 SCENARIO ?= sumo_scenarios/cross4/scenario.toml
 OUT    ?= runs
 
-.PHONY: install run test docs paper bench nets golden docs-figures clean clean-cache
+.PHONY: install run test docs paper bench studies nets golden docs-figures clean clean-cache
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -38,6 +38,10 @@ paper: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/nrtraffic bench
+
+# every study committed under docs/, run again (about 8 run-hours; runners/studies.py, --list shows them)
+studies: $(STAMP)
+	$(BIN)/python -m runners.studies
 
 nets: $(STAMP)
 	$(BIN)/python sumo_scenarios/paper_curved/generate.py

@@ -384,7 +384,8 @@ def main(argv: list[str] | None = None) -> int:
             interrupts.settle()
 
 
-def _main(argv: list[str] | None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line's parser (every command and option; parsing checks them, runs nothing)."""
     parser = argparse.ArgumentParser(
         prog="nrtraffic",
         description="Co-simulation of signal-free intersections: SUMO + energy-optimal planning + "
@@ -401,6 +402,11 @@ def _main(argv: list[str] | None) -> int:
     _add_compare(sub)
     _add_bench(sub)
     _add_schema(sub)
+    return parser
+
+
+def _main(argv: list[str] | None) -> int:
+    parser = build_parser()
     given, argv = list(sys.argv[1:] if argv is None else argv), []
     while given:  # (--seeds -1:0 would be taken for an option: it is checked as a range instead)
         a = given.pop(0)

@@ -1,0 +1,139 @@
+"""The registry of committed studies (runners/studies.py) against what is committed: every study's
+files, the commands the pages show, and the seeds, controls, grid values and durations of the
+committed tables themselves."""
+
+from __future__ import annotations
+
+import re
+import shlex
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from runners import studies
+from runners.cli import build_parser
+from runners.studies import STUDIES, Study, command, committed, copy_outputs
+
+DOCS = Path(__file__).resolve().parent.parent / "docs"
+SWEEPS = [s for s in STUDIES if s.kind == "sweep"]
+
+
+def _option(argv, name) -> list[str]:
+    return [argv[k + 1] for k, a in enumerate(argv) if a == name]
+
+
+def _seeds(text: str) -> set[int]:
+    if ":" in text:
+        a, b = text.split(":")
+        return set(range(int(a), int(b) + 1))
+    return {int(x) for x in text.split(",")}
+
+
+def test_every_committed_study_file_belongs_to_exactly_one_study():
+    folders = {p.parent for p in DOCS.rglob("sweep.csv")} | {DOCS / "paper"}
+    registered = {DOCS / s.docs for s in STUDIES}
+    assert folders == registered, "a docs folder of study results without a registered command, or the reverse"
+    for folder in registered:
+        files = sorted(p.relative_to(folder) for p in folder.rglob("*") if p.is_file())
+        owners = [rel for s in STUDIES if DOCS / s.docs == folder for rel in committed(s)]
+        assert sorted(owners) == files, folder  # every file once, none twice
+
+
+def test_every_command_is_one_the_command_line_takes(tmp_path):
+    parser = build_parser()
+    for s in STUDIES:
+        args = parser.parse_args(command(s, tmp_path / s.name, ["--workers", "2"]))
+        assert args.command == s.kind
+
+
+def _page_commands(page: Path) -> list[tuple[str, ...]]:
+    """The nrtraffic commands of a page's shell blocks, continuation lines joined, ``S="..."``
+    variables expanded, without ``--out``, ``--workers`` and comments."""
+    out = []
+    for block in re.findall(r"```sh\n(.*?)```", page.read_text(), flags=re.S):
+        text = block.replace("\\\n", " ")
+        names = {}
+        for line in text.splitlines():
+            m = re.match(r'^(\w+)="(.*)"$', line.strip())
+            if m:
+                names[m.group(1)] = m.group(2)
+                continue
+            for k, v in names.items():
+                line = line.replace(f"${k}", v)
+            words = shlex.split(line, comments=True)
+            if not words or words[0] != "nrtraffic":
+                continue
+            kept, skip = [], False
+            for w in words[1:]:
+                if skip:
+                    skip = False
+                elif w in ("--out", "--workers"):
+                    skip = True
+                else:
+                    kept.append(w)
+            out.append(tuple(kept))
+    return out
+
+
+def test_the_pages_show_the_registered_commands():
+    shown = [s for s in STUDIES if s.shown_in]
+    assert len(shown) >= 20
+    for s in shown:
+        assert s.argv in _page_commands(DOCS / s.shown_in), f"{s.name}: not the command docs/{s.shown_in} shows"
+
+
+@pytest.mark.parametrize("study", SWEEPS, ids=[s.name for s in SWEEPS])
+def test_each_sweep_command_made_its_committed_table(study: Study):
+    """Seeds, controls, grid keys and values, duration and warm-up, read back from the committed
+    sweep.csv (written by the sweep itself)."""
+    name = next((dst for src, dst in study.copy.items() if src == "sweep.csv"), "sweep.csv")
+    df = pd.read_csv(DOCS / study.docs / name)
+    a = study.argv
+    assert set(df["seed"]) == _seeds(_option(a, "--seeds")[0])
+    baselines = _option(a, "--baseline")
+    assert set(df["control"]) == {"nrtraffic", *(baselines[0].split(",") if baselines else [])}
+    grid = dict(g.split("=", 1) for g in _option(a, "--grid"))
+    assert list(df.columns[:list(df.columns).index("seed")]) == list(grid)
+    for key, values in grid.items():
+        assert sorted(set(df[key])) == sorted(float(v) for v in values.split(",")), key
+    ok = df[df["status"] == "ok"]
+    assert len(ok) == len(df)
+    if _option(a, "--duration"):
+        assert (ok["sim_time_s"] == float(_option(a, "--duration")[0])).all()
+    warmup = [v.split("=")[1] for v in _option(a, "--set") if v.startswith("outputs.warmup_s=")]
+    if warmup:
+        assert (ok["measure_from_s"] == float(warmup[0])).all()
+
+
+def test_copy_takes_only_the_committed_files_under_their_names(tmp_path):
+    docs = tmp_path / "docs"
+    (docs / "study").mkdir(parents=True)
+    for f in ("sweep.csv", "sweep.md", "margin_sweep.csv", "margin_sweep.md"):
+        (docs / "study" / f).write_text("old")
+    out = tmp_path / "out"
+    out.mkdir()
+    for f in ("sweep.csv", "sweep.md", "runs.txt"):
+        (out / f).write_text(f"new {f}")
+    main, margin = (next(s for s in STUDIES if s.name == n) for n in ("study", "margin"))
+    assert sorted(map(str, copy_outputs(main, out, docs))) == ["sweep.csv", "sweep.md"]
+    assert (docs / "study" / "margin_sweep.csv").read_text() == "old"
+    assert not (docs / "study" / "runs.txt").exists()
+    assert sorted(map(str, copy_outputs(margin, out, docs))) == ["margin_sweep.csv", "margin_sweep.md"]
+    assert (docs / "study" / "margin_sweep.csv").read_text() == "new sweep.csv"
+
+
+def test_a_study_that_fails_leaves_its_files_and_the_command_fails(tmp_path, monkeypatch, capsys):
+    docs = tmp_path / "docs"
+    (docs / "broken").mkdir(parents=True)
+    (docs / "broken" / "sweep.csv").write_text("old")
+    monkeypatch.setattr(studies, "DOCS", docs)
+    monkeypatch.setattr(studies, "STUDIES", (Study("broken", ("sweep", "sumo_scenarios/no_such_scenario",
+                                                              "--seeds", "1"), "broken"),))
+    assert studies.main(["--runs", str(tmp_path / "runs")]) == 1
+    assert (docs / "broken" / "sweep.csv").read_text() == "old"
+    assert "broken: failed (exit 2)" in capsys.readouterr().out
+
+
+def test_an_unknown_study_is_refused():
+    assert studies.main(["--only", "no_such_study", "--dry-run"]) == 2
