@@ -9,8 +9,9 @@ ADDRESS`` or ``--cluster slurm ...``; the default is ``--workers 2``).
 
 ``--list`` shows each study, where it is committed, its command and what its committed runs cost
 (the sum of their own wall times in its ``sweep.csv``: the work to do, not the wall time on N
-workers). The prose and the tables in the pages that quote a study are then read again by hand:
-this only re-makes the files.
+workers). ``--check`` re-makes studies and compares each sweep's table with the committed one
+(:func:`compare_table`) instead of copying. The prose and the tables in the pages that quote a
+study are read again by hand: this only re-makes the files.
 """
 
 from __future__ import annotations
@@ -148,15 +149,62 @@ def copy_outputs(study: Study, out: Path, docs: Path | None = None) -> list[Path
     return copied
 
 
+# figures of a run that are not results: how long it took, and where it was written
+_NOT_RESULTS = ("wall_time", "real_time_factor", "run_dir")
+
+
+def compare_table(committed_csv: Path, remade_csv: Path) -> list[str]:
+    """The figures of a re-made ``sweep.csv`` that differ from the committed one: one line per
+    column, with the runs that differ and the largest difference; empty when they agree. Runs are
+    matched by their grid values, seed and control; wall times and run folders are left out. A
+    number agrees when it is within half a unit of the last decimal the committed table wrote it
+    with (a table written at a finer resolution since then still agrees)."""
+    import numpy as np
+    import pandas as pd
+
+    old_text = pd.read_csv(committed_csv, dtype=str, keep_default_na=False)
+    old, new = pd.read_csv(committed_csv), pd.read_csv(remade_csv)
+    keys = list(old.columns[:list(old.columns).index("control") + 1])
+    if sorted(map(tuple, old[keys].astype(str).values)) != sorted(map(tuple, new[keys].astype(str).values)):
+        return [f"runs: {len(old)} committed, {len(new)} re-made, not the same grid points, seeds and controls"]
+    order = old.sort_values(keys).index
+    old, old_text = old.loc[order].reset_index(drop=True), old_text.loc[order].reset_index(drop=True)
+    new = new.sort_values(keys).reset_index(drop=True)
+    out = []
+    for c in old.columns:
+        if c in keys or c.startswith(_NOT_RESULTS):
+            continue
+        if c not in new:
+            out.append(f"{c}: not in the re-made table")
+            continue
+        x, y = old[c], new[c]
+        if pd.api.types.is_numeric_dtype(x) and pd.api.types.is_numeric_dtype(y):
+            decimals = old_text[c].str.partition(".")[2].str.len().to_numpy()
+            tol = 0.5 * 10.0 ** -decimals.astype(float) + 1e-9
+            d = np.abs(x.to_numpy(float) - y.to_numpy(float))
+            bad = ~((d <= tol) | (x.isna() & y.isna()).to_numpy())
+            if bad.any():
+                out.append(f"{c}: {int(bad.sum())} of {len(x)} runs, by up to {np.nanmax(np.where(bad, d, np.nan)):.6g}")
+        else:
+            bad = ~((x.astype(str) == y.astype(str)) | (x.isna() & y.isna()))
+            if bad.any():
+                out.append(f"{c}: {int(bad.sum())} of {len(x)} runs")
+    return out
+
+
 def cost_s(study: Study, docs: Path | None = None) -> float | None:
     """The sum of the committed runs' own wall times [s] (its sweep.csv), or None without one."""
     import pandas as pd
 
-    name = next((dst for src, dst in study.copy.items() if src == "sweep.csv"), "sweep.csv")
-    f = (docs or DOCS) / study.docs / name
+    f = (docs or DOCS) / study.docs / _table_name(study)
     if not f.is_file():
         return None
     return float(pd.read_csv(f)["wall_time_s"].sum())
+
+
+def _table_name(study: Study) -> str:
+    """The name its sweep.csv is committed under."""
+    return next((dst for src, dst in study.copy.items() if src == "sweep.csv"), "sweep.csv")
 
 
 def command(study: Study, out: Path, where: list[str]) -> list[str]:
@@ -181,6 +229,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--list", action="store_true", help="list the studies, their commands and cost, and exit")
     p.add_argument("--dry-run", action="store_true", help="print the commands without running them")
     p.add_argument("--no-copy", action="store_true", help="run, but leave the committed files as they are")
+    p.add_argument("--check", action="store_true",
+                   help="run, and compare each sweep's table with the committed one instead of copying (every "
+                        "figure but wall times, to the decimals it was committed with); exit 1 where one differs")
     args = p.parse_args(argv)
     chosen = list(STUDIES)
     if args.only:
@@ -216,12 +267,25 @@ def main(argv: list[str] | None = None) -> int:
             print(f"[{k}/{len(chosen)}] {s.name}: failed (exit {code}) after {took:.0f} s; docs/{s.docs} left as it "
                   "was", flush=True)
             continue
+        if args.check:
+            table = _table_name(s)
+            if not (DOCS / s.docs / table).is_file():
+                print(f"[{k}/{len(chosen)}] {s.name}: done in {took:.0f} s; no sweep table to compare", flush=True)
+                continue
+            diff = compare_table(DOCS / s.docs / table, out / "sweep.csv")
+            if diff:
+                failed.append(s.name)
+            said = (f"the same figures as docs/{s.docs}/{table}" if not diff else
+                    f"differs from docs/{s.docs}/{table}:" + "".join(f"\n    {d}" for d in diff))
+            print(f"[{k}/{len(chosen)}] {s.name}: done in {took:.0f} s; {said}", flush=True)
+            continue
         copied = [] if args.no_copy else copy_outputs(s, out)
         print(f"[{k}/{len(chosen)}] {s.name}: done in {took:.0f} s"
               + ("" if args.no_copy else f", {len(copied)} files copied to docs/{s.docs}"), flush=True)
     if not args.dry_run:
         print(f"studies: {len(chosen) - len(failed)} of {len(chosen)} done in {time.perf_counter() - t_all:.0f} s"
-              + (f"; failed: {', '.join(failed)} (run the same command again to resume them)" if failed else ""))
+              + (f"; failed or different: {', '.join(failed)} (a failed one resumes when run again)"
+                 if failed else ""))
     return 1 if failed else 0
 
 

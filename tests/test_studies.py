@@ -137,3 +137,20 @@ def test_a_study_that_fails_leaves_its_files_and_the_command_fails(tmp_path, mon
 
 def test_an_unknown_study_is_refused():
     assert studies.main(["--only", "no_such_study", "--dry-run"]) == 2
+
+
+def test_a_remade_table_agrees_to_the_decimals_it_was_committed_with(tmp_path):
+    head = "demand.rate_veh_h,seed,control,status,wall_time_s,run_dir,max_tracking_error_m,vehicles_completed\n"
+    old = tmp_path / "old.csv"
+    old.write_text(head + "400,1,nrtraffic,ok,3.1,a,0.041,230\n400,2,nrtraffic,ok,3.0,b,0.001,231\n")
+    same = tmp_path / "same.csv"  # other wall times and folders, finer decimals, another row order
+    same.write_text(head + "400,2,nrtraffic,ok,9.9,y,0.0005,231\n400,1,nrtraffic,ok,7.7,x,0.04061,230\n")
+    assert studies.compare_table(old, same) == []
+    moved = tmp_path / "moved.csv"
+    moved.write_text(head + "400,1,nrtraffic,ok,3.1,a,0.12284,230\n400,2,nrtraffic,ok,3.0,b,0.001,232\n")
+    diff = studies.compare_table(old, moved)
+    assert [d.split(":")[0] for d in diff] == ["max_tracking_error_m", "vehicles_completed"]
+    assert "1 of 2 runs, by up to 0.08184" in diff[0]
+    fewer = tmp_path / "fewer.csv"
+    fewer.write_text(head + "400,1,nrtraffic,ok,3.1,a,0.041,230\n")
+    assert studies.compare_table(old, fewer)[0].startswith("runs: 2 committed, 1 re-made")
