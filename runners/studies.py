@@ -153,6 +153,17 @@ def copy_outputs(study: Study, out: Path, docs: Path | None = None) -> list[Path
 _NOT_RESULTS = ("wall_time", "real_time_factor", "run_dir")
 
 
+def _last_decimal(text: str) -> int:
+    """The power of ten of a number's last written digit: -3 for "0.041", -5 for "9e-05", 0 for
+    "230" (0 for an empty cell)."""
+    from decimal import Decimal, InvalidOperation
+
+    try:
+        return int(Decimal(text).as_tuple().exponent) if text else 0
+    except (InvalidOperation, TypeError, ValueError):
+        return 0
+
+
 def compare_table(committed_csv: Path, remade_csv: Path) -> list[str]:
     """The figures of a re-made ``sweep.csv`` that differ from the committed one: one line per
     column, with the runs that differ and the largest difference; empty when they agree. Runs are
@@ -179,8 +190,7 @@ def compare_table(committed_csv: Path, remade_csv: Path) -> list[str]:
             continue
         x, y = old[c], new[c]
         if pd.api.types.is_numeric_dtype(x) and pd.api.types.is_numeric_dtype(y):
-            decimals = old_text[c].str.partition(".")[2].str.len().to_numpy()
-            tol = 0.5 * 10.0 ** -decimals.astype(float) + 1e-9
+            tol = 0.5 * 10.0 ** old_text[c].map(_last_decimal).to_numpy(float) + 1e-9
             d = np.abs(x.to_numpy(float) - y.to_numpy(float))
             bad = ~((d <= tol) | (x.isna() & y.isna()).to_numpy())
             if bad.any():

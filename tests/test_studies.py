@@ -151,6 +151,14 @@ def test_a_remade_table_agrees_to_the_decimals_it_was_committed_with(tmp_path):
     diff = studies.compare_table(old, moved)
     assert [d.split(":")[0] for d in diff] == ["max_tracking_error_m", "vehicles_completed"]
     assert "1 of 2 runs, by up to 0.08184" in diff[0]
+    exp = tmp_path / "exp.csv"  # a committed exponent keeps its own resolution
+    exp.write_text(head + "400,1,nrtraffic,ok,3.1,a,9e-05,230\n400,2,nrtraffic,ok,3.0,b,0.001,231\n")
+    assert studies.compare_table(exp, tmp_path / "exp.csv") == []
+    near = tmp_path / "near.csv"
+    near.write_text(head + "400,1,nrtraffic,ok,3.1,a,0.000094,230\n400,2,nrtraffic,ok,3.0,b,0.001,231\n")
+    assert studies.compare_table(exp, near) == []
+    near.write_text(head + "400,1,nrtraffic,ok,3.1,a,0.0001,230\n400,2,nrtraffic,ok,3.0,b,0.001,231\n")
+    assert studies.compare_table(exp, near)[0].startswith("max_tracking_error_m: 1 of 2 runs")
     fewer = tmp_path / "fewer.csv"
     fewer.write_text(head + "400,1,nrtraffic,ok,3.1,a,0.041,230\n")
     assert studies.compare_table(old, fewer)[0].startswith("runs: 2 committed, 1 re-made")
