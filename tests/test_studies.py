@@ -14,6 +14,7 @@ import pytest
 from runners import studies
 from runners.cli import build_parser
 from runners.studies import STUDIES, Study, command, committed, copy_outputs
+from runners.sweep import parse_seeds
 
 DOCS = Path(__file__).resolve().parent.parent / "docs"
 SWEEPS = [s for s in STUDIES if s.kind == "sweep"]
@@ -21,13 +22,6 @@ SWEEPS = [s for s in STUDIES if s.kind == "sweep"]
 
 def _option(argv, name) -> list[str]:
     return [argv[k + 1] for k, a in enumerate(argv) if a == name]
-
-
-def _seeds(text: str) -> set[int]:
-    if ":" in text:
-        a, b = text.split(":")
-        return set(range(int(a), int(b) + 1))
-    return {int(x) for x in text.split(",")}
 
 
 def test_every_committed_study_file_belongs_to_exactly_one_study():
@@ -90,7 +84,7 @@ def test_each_sweep_command_made_its_committed_table(study: Study):
     name = next((dst for src, dst in study.copy.items() if src == "sweep.csv"), "sweep.csv")
     df = pd.read_csv(DOCS / study.docs / name)
     a = study.argv
-    assert set(df["seed"]) == _seeds(_option(a, "--seeds")[0])
+    assert set(df["seed"]) == set(parse_seeds(_option(a, "--seeds")[0]))
     baselines = _option(a, "--baseline")
     assert set(df["control"]) == {"nrtraffic", *(baselines[0].split(",") if baselines else [])}
     grid = dict(g.split("=", 1) for g in _option(a, "--grid"))
