@@ -39,6 +39,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from nrtraffic.sumo.network import edge_of
+
 VEHICLE_COLUMNS = [
     "vehicle_id", "junction", "leg", "legs", "approach", "driver", "movement", "lane", "depart_delay_s", "t_arrive_s", "t_enter_s", "v_enter_mps", "t_merge_planned_s", "t_merge_actual_s",
     "t_exit_s", "t_exit_free_s", "delay_s", "max_tracking_error_m", "steady_tracking_error_m", "transient_tracking_error_m",
@@ -301,7 +303,7 @@ def queue_approach(detector_id: str) -> str:
     lane ``<edge>_<index>``); runs of earlier versions named it ``queue|<approach>|<lane>``."""
     if "|" in detector_id:
         return detector_id.split("|")[1]
-    return detector_id.removeprefix(QUEUE_DETECTOR).rsplit("_", 1)[0]
+    return edge_of(detector_id.removeprefix(QUEUE_DETECTOR))
 
 
 QUEUE_COLUMNS = ["approach", "begin_s", "end_s", "mean_queue_veh", "max_queue_veh", "mean_queue_m", "max_queue_m"]

@@ -24,12 +24,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from nrtraffic.sumo.network import edge_of
+
 PAST_ZONE_M = 10.0  # a road's panel goes on this far past the end of its merging zone [m]
 SERIES_COLUMNS = ["vehicle_id", "segment", "t", "s_m", "movement", "driver"]
-
-
-def _edge(lane: str) -> str:
-    return lane.rsplit("_", 1)[0]
 
 
 def read_fcd_lanes(path: Path, t0_s: float = 0.0) -> pd.DataFrame:
@@ -88,7 +86,7 @@ class Road:
         return self.merge_exit_m + PAST_ZONE_M
 
     def offset(self, lane: str) -> tuple[str, float] | None:
-        return self.lane_offset.get(lane) or self.edge_offset.get(_edge(lane))
+        return self.lane_offset.get(lane) or self.edge_offset.get(edge_of(lane))
 
 
 def roads(movements: dict, lengths: dict[str, float]) -> dict[str, Road]:
@@ -106,7 +104,7 @@ def roads(movements: dict, lengths: dict[str, float]) -> dict[str, Road]:
         for k, lane in enumerate(m["lanes"]):
             mv = None if k == 0 else m["turn"]  # (the approach lane is every movement's)
             r.lane_offset.setdefault(lane, (mv, off))
-            r.edge_offset.setdefault(_edge(lane), (mv, off))
+            r.edge_offset.setdefault(edge_of(lane), (mv, off))
             off += lengths.get(lane, np.nan)
     return out
 
@@ -225,7 +223,7 @@ def time_space_series(run_dir: Path, source: str | None = None) -> dict[str, pd.
     drivers = _drivers(vehicles)
     if source == "fcd":
         fcd = _fcd(run_dir)
-        rows = _segments_from_fcd(fcd, panels, lambda name, lane: _edge(lane) == name)
+        rows = _segments_from_fcd(fcd, panels, lambda name, lane: edge_of(lane) == name)
         # a vehicle's turn where its path never left the approach edge: from vehicles.csv
         turn = {(v, a): m for v, a, m in zip(vehicles["vehicle_id"], vehicles["approach"], vehicles["movement"])}
         out = {}
@@ -259,7 +257,7 @@ class Arterial:
     top_m: float = np.inf
 
     def offset(self, lane: str) -> tuple[str, float] | None:
-        return self.lane_offset.get(lane) or self.edge_offset.get(_edge(lane))
+        return self.lane_offset.get(lane) or self.edge_offset.get(edge_of(lane))
 
 
 def arterials(movements: dict, lengths: dict[str, float]) -> dict[str, Arterial]:
@@ -267,7 +265,7 @@ def arterials(movements: dict, lengths: dict[str, float]) -> dict[str, Arterial]
     enters its junction by, through two or more junctions; keyed by the road the chain enters by."""
     mvs = {k: m for k, m in movements["movements"].items() if m["turn"] in ("straight", "through")}
     by_approach = {m["approach"]: k for k, m in mvs.items()}
-    exit_of = {k: _edge(m["lanes"][-1]) for k, m in mvs.items()}
+    exit_of = {k: edge_of(m["lanes"][-1]) for k, m in mvs.items()}
     fed = set(exit_of.values())
     out = {}
     for k, m in mvs.items():
@@ -291,7 +289,7 @@ def arterials(movements: dict, lengths: dict[str, float]) -> dict[str, Arterial]
                     base = off  # the exit edge is the next movement's approach
                     break
                 lanes.setdefault(lane, (name, off))
-                edges.setdefault(_edge(lane), (name, off))
+                edges.setdefault(edge_of(lane), (name, off))
                 off += lengths.get(lane, np.nan)
             if last:
                 top = off

@@ -165,6 +165,20 @@ def test_lane_level_movements_follow_sumo_connections(tmp_path_factory):
     assert s["collisions"] == 0 and s["collisions_geometric"] == 0
 
 
+def test_edge_of_a_lane_is_sumolibs():
+    """``edge_of`` against sumolib's own lane -> edge map, over every lane of a public network
+    (edge ids with '_' and '#', internal lanes included)."""
+    import sumolib
+
+    from conftest import SCENARIOS
+    from nrtraffic.sumo.network import edge_of
+
+    net = sumolib.net.readNet(str(SCENARIOS / "bologna_pasubio" / "net.net.xml"), withInternal=True)
+    lanes = [ln for e in net.getEdges(withInternal=True) for ln in e.getLanes()]
+    assert any(ln.getID().startswith(":") for ln in lanes) and any("_" in e.getID() for e in net.getEdges())
+    assert all(edge_of(ln.getID()) == ln.getEdge().getID() for ln in lanes)
+
+
 def test_coordinator_with_conflicts_by_hand():
     rel = {("A", "B"): CONFLICT, ("B", "A"): CONFLICT}
     c = Coordinator(CoordinatorSettings(rear_end_spacing_m=12.0, min_merge_headway_s=1.0), PlanBounds(v_max_mps=20.0),

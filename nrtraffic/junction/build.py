@@ -19,6 +19,7 @@ import numpy as np
 from nrtraffic.geometry import LanePath
 from nrtraffic.junction import Junction, Layout, Movement
 from nrtraffic.planning.conflicts import MovementGeometry, classify, conflict_areas
+from nrtraffic.sumo.network import edge_of
 
 MIN_CONTROL_ZONE_M = 20.0  # shortest control zone a route may leave after a cut [m]
 # on a road with several lanes between two controlled junctions, where the lane decides the turn:
@@ -130,7 +131,7 @@ def build_paths(sc, layout: Layout, sumo, params, control: bool) -> tuple[dict[s
             check_turn_radius(name, path, s_c, s_x, params, sc.controller.steer_max_rad)
         v_lim = min(sumo.lane_speed(ln) for ln, _, _ in lanes) if j.xy is not None else math.inf
         v_lim = min(v_lim, curve_speed(path, s_m, s_x, sc.planning.max_lateral_accel_mps2))
-        roads = {ln: ln.rsplit("_", 1)[0] for ln, _, _ in lanes if not ln.startswith(":")}
+        roads = {ln: edge_of(ln) for ln, _, _ in lanes if not ln.startswith(":")}
         exit_edges = frozenset(e for ln, e in roads.items()
                                if offsets[ln][0] + sumo.edge_length(e) * offsets[ln][1] > s_x)
         out[name] = Movement(name, appr, turn, route, path, [ln for ln, _, _ in lanes], offsets, s_c, s_m, s_x,

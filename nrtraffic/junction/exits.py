@@ -21,13 +21,11 @@ import math
 
 import numpy as np
 
+from nrtraffic.sumo.network import edge_of
+
 QUEUE_MPS = 2.0  # a vehicle slower than this past a merging zone is a queue [m/s]
 BRAKING_MPS2 = 0.5  # ... and one decelerating harder than this stops where its deceleration takes it [m/s^2]
 ROOM_M = 3.0  # room a vehicle needs past its merging zone beyond its body and the standstill gap [m]
-
-
-def _edge(lane: str) -> str:
-    return lane.rsplit("_", 1)[0]
 
 
 def _queued_edges(snap) -> set[str]:
@@ -36,7 +34,7 @@ def _queued_edges(snap) -> set[str]:
     found = snap.derived.get("queued_edges")
     if found is None:
         slow = np.flatnonzero((snap.speed < QUEUE_MPS) | (snap.accel < -BRAKING_MPS2)).tolist()
-        found = snap.derived["queued_edges"] = {_edge(snap.lane[k]) for k in slow}
+        found = snap.derived["queued_edges"] = {edge_of(snap.lane[k]) for k in slow}
     return found
 
 
@@ -62,7 +60,7 @@ def blocked(st, vid: str) -> str | None:
         if lane.startswith(":"):  # (the junction's own lanes are not searched: a car inside it is not counted)
             continue
         off, scale = mv.lane_offset[lane]
-        for k in rows.get(_edge(lane), ()):
+        for k in rows.get(edge_of(lane), ()):
             if snap.ids[k] == vid:
                 continue
             s_front = off + float(snap.lane_pos[k]) * scale

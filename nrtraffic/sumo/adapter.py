@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from nrtraffic.sumo.network import edge_of
+
 _ACTIVE = None
 DEFAULT_SPEED_MODE = 31  # SUMO's default: all safety checks on
 DEFAULT_LANE_CHANGE_MODE = 1621  # SUMO's default: strategic, cooperative, speed gain and keep-right changes
@@ -89,7 +91,7 @@ class VehicleTable:
         by their own ``:<junction>_<n>``), made once, when first asked."""
         rows: dict[str, list[int]] = {}
         for k, lane in enumerate(self.lane):
-            rows.setdefault(lane.rsplit("_", 1)[0], []).append(k)
+            rows.setdefault(edge_of(lane), []).append(k)
         return rows
 
 
@@ -434,7 +436,7 @@ class SumoSession:
                 nxt = edges[k + 1]
                 via = target = None
                 for link in t.lane.getLinks(lane):
-                    if link[0].rsplit("_", 1)[0] == nxt and (
+                    if edge_of(link[0]) == nxt and (
                             k > 0 or lane_to is None or link[0] == f"{nxt}_{lane_to}"):
                         target, via = link[0], link[4]
                         break

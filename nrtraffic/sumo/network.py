@@ -10,6 +10,12 @@ from pathlib import Path
 TURNS = {"l": "left", "L": "left", "s": "straight", "r": "right", "R": "right", "t": "uturn"}
 
 
+def edge_of(lane_id: str) -> str:
+    """The edge of a SUMO lane: its id less the ``_<index>`` SUMO appends (``Saffi_103_158#1_0`` ->
+    ``Saffi_103_158#1``; a junction's internal lane ``:J_3_0`` -> its internal edge ``:J_3``)."""
+    return lane_id.rsplit("_", 1)[0]
+
+
 class NetworkError(ValueError):
     """The network does not have what the scenario names."""
 
