@@ -32,6 +32,7 @@ def shifted_exponential_arrivals(rng: np.random.Generator, begin_s: float, end_s
     return np.array(out)
 
 
+BACKGROUND = "background"  # the route names of a route file's vehicles that cross no controlled junction
 SHARE_STREAM = 0x6875_6D61_6E  # the run seed's stream that draws which vehicles are controlled ("human")
 ROUTE_STREAM = 0x726F_757465  # the run seed's stream that draws a vehicle's turns after its first junction ("route")
 
@@ -50,6 +51,15 @@ class Demand:
         self.sc, self.layout, self.seed, self.duration = sc, layout, int(seed), float(duration_s)
         self.itineraries: dict[str, tuple[str, ...]] = {}
         self.file_routes: dict[str, tuple[str, ...]] = {}  # a route file's route -> its edges, whole
+        # a route file's vehicles that cross no controlled junction (as departures; "background~k" routes):
+        # written for SUMO to drive, left out of the run's demand and figures
+        self.background: list[tuple] = []
+        # a route file's vehicles sent in slower than the entry speed because the first edge's speed
+        # limit, or a link where they give way just after their start, allows no more (its departSpeed
+        # not a number): SUMO's driver takes them to their control zone, and their free-flow speed is the
+        # entry speed
+        self.paced: set[str] = set()
+        self.background_routes: dict[str, tuple[str, ...]] = {}
         self.notes: list[str] = []  # what the run does differently from the demand as given (summary warnings)
         self._departures: list[tuple] | None = None
         if sc.general.sumocfg:
@@ -139,6 +149,7 @@ class Demand:
         times and once more with the chance of the fraction (the copies named ``<id>#<k>``; SUMO's
         ``--scale``); with ``demand.depart_offset_s``, each departure is later by a uniform random
         time up to it; both drawn from the run's seed."""
+        from nrtraffic.sumo.adapter import VehicleType
         from nrtraffic.sumo.demandfile import merged, read_sumo_demand, routed
         from nrtraffic.sumo.network import read_net
 
@@ -148,21 +159,36 @@ class Demand:
         by_edges = {(r[0], r[1]): name for name, (_, _, r) in self.movement_table.items()}
         net = read_net(self.sc.network_path)
         files = d.route_files(self.sc.base_dir)
+        safe = (self.sc.vehicle.params().length, VehicleType.decel_mps2, self.sc.sumo.step_length_s)
+        capped: set[str] = set()
         read = read_sumo_demand(routed(merged(files), self.sc.network_path), by_edges, rng, t0 + end, d.entry_speed_mps,
-                                net=net, source=", ".join(f.name for f in files), notes=self.notes)
+                                net=net, source=", ".join(f.name for f in files), notes=self.notes, safe_start=safe,
+                                capped=capped)
         named: dict[tuple, str] = {}
         variants: dict[tuple, int] = {}  # crossings -> routes named for them so far
         veh = []
         classes: dict[str, int] = {}
+        ids = [v[0] for v in read]
         if d.scale != 1.0:  # SUMO's --scale: each vehicle int(scale) times, and once more with the rest's chance
             whole, rest = divmod(d.scale, 1.0)
             copies = int(whole) + (rng.random(len(read)) < rest)
             read = [(v[0] if k == 0 else f"{v[0]}#{k}", *v[1:]) for v, n in zip(read, copies.tolist())
                     for k in range(n)]
+            capped = {f"{vid}#{k}" if k else vid for vid, n in zip(ids, copies.tolist()) for k in range(n)
+                      if vid in capped}
         offsets = rng.uniform(0.0, d.depart_offset_s, len(read)) if d.depart_offset_s > 0 else np.zeros(len(read))
         for (vid, legs, t, v0, pos, edges, lane, vclass), extra in zip(read, offsets.tolist()):
             t += extra - t0  # (SUMO's --random-depart-offset, drawn from the run's seed)
             if t < -1e-9:  # (before the run's start: SUMO does not insert it either)
+                continue
+            if vid in capped and legs:
+                self.paced.add(vid)
+            if not legs:  # (crosses no controlled junction: SUMO drives it, the figures leave it out)
+                key = named.get(((), edges))
+                if key is None:
+                    key = named[((), edges)] = f"{BACKGROUND}~{len(self.background_routes)}"
+                    self.background_routes[key] = edges
+                self.background.append((vid, key, t, v0, pos, "auto", lane))
                 continue
             key = named.get((legs, edges))
             if key is None:
@@ -178,6 +204,10 @@ class Demand:
             among = ", ".join(f"{n} of vClass {k}" for k, n in sorted(others.items()))
             self.notes.append(f"demand.sumo_routes: its {len(veh)} vehicles drive as nrtraffic's car (the file's "
                               "vTypes are not used)" + (f", {among} among them" if others else ""))
+        if self.background:
+            self.notes.append(f"demand.sumo_routes: {len(self.background)} of its vehicles cross no controlled "
+                              "junction: SUMO drives them on their routes as nrtraffic's car, and the run's figures "
+                              "leave them out")
         return veh
 
     def _arrival_times(self, rng, rate: float, end: float) -> np.ndarray:
@@ -349,5 +379,9 @@ class Demand:
             types.append(VehicleType("human", params.length, params.width, h.min_gap_m, h.accel_mps2, h.decel_mps2,
                                      v_max, h.sigma, h.tau_s, h.speed_dev, h.car_follow_model))
         routes = {k: self.route_edges(k) for k in [*self.movement_table, *self.itineraries]}
-        write_routes(path, types, routes, demand, t0_s=self.sc.general.begin_s)
+        vehicles = demand
+        if self.background:  # (the route file in order of departure, as SUMO reads it)
+            routes.update(self.background_routes)
+            vehicles = sorted([*demand, *self.background], key=lambda v: v[2])
+        write_routes(path, types, routes, vehicles, t0_s=self.sc.general.begin_s)
         return demand

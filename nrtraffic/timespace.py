@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from nrtraffic.sumo.network import edge_of
+from nrtraffic.sumo.network import edge_of, open_xml
 
 PAST_ZONE_M = 10.0  # a road's panel goes on this far past the end of its merging zone [m]
 SERIES_COLUMNS = ["vehicle_id", "segment", "t", "s_m", "movement", "driver"]
@@ -60,11 +60,12 @@ def lane_lengths(run_dir: Path) -> dict[str, float]:
         rel = tomllib.loads((run_dir / "scenario.resolved.toml").read_text())["scenario"]["network"]
         net = run_dir / rel
     out = {}
-    for _, el in ET.iterparse(net, events=("end",)):
-        if el.tag == "lane":
-            out[el.get("id")] = float(el.get("length"))
-        elif el.tag == "edge":
-            el.clear()
+    with open_xml(net) as f:
+        for _, el in ET.iterparse(f, events=("end",)):
+            if el.tag == "lane":
+                out[el.get("id")] = float(el.get("length"))
+            elif el.tag == "edge":
+                el.clear()
     return out
 
 

@@ -104,7 +104,7 @@ def _check_depart_speeds(sc: scenario_mod.Scenario, demand, departures) -> None:
     from before a link where it must give way (SUMO discards it: "will not be able to depart"), and
     no ``[[vehicles]]`` placed beyond its end (SUMO moved it to the end without a word)."""
     from nrtraffic.sumo.adapter import VehicleType
-    from nrtraffic.sumo.network import read_net
+    from nrtraffic.sumo.network import give_way_room, read_net
 
     net = read_net(sc.network_path)
     limit: dict[str, float] = {}
@@ -133,7 +133,7 @@ def _check_depart_speeds(sc: scenario_mod.Scenario, demand, departures) -> None:
         decel = sc.human.decel_mps2 if human else VehicleType.decel_mps2
         key = (route, pos, speed, human)
         if key not in stops:
-            stops[key] = _stop_room(net, demand.route_edges(route), pos if pos >= 0 else length)
+            stops[key] = give_way_room(net, demand.route_edges(route), pos if pos >= 0 else length)
         room = stops[key]
         if room is not None and speed * speed + 2 * speed * decel * dt > 2 * decel * room[0] + 1e-9:
             # (SUMO's insertion check: the driver must be able to stop, braking at its decel from the
@@ -145,25 +145,6 @@ def _check_depart_speeds(sc: scenario_mod.Scenario, demand, departures) -> None:
                 f"vehicle {vid} departs at {speed:g} m/s and, braking at {decel:g} m/s^2, could not stop in the "
                 f"{room[0]:.1f} m before the junction {room[1]} where it must give way (SUMO would discard it: "
                 f"\"will not be able to depart\"): {fix}")
-
-
-def _stop_room(net, edges: list[str], front_m: float) -> tuple[float, str] | None:
-    """The distance [m] from a departing vehicle's front (``front_m`` along the first of ``edges``)
-    to the first link of its route where it has no priority (a minor, equal, stop or all-way-stop
-    link, as SUMO's insertion sees it), and that junction's id; None where the route has none.
-    Traffic lights are left out (whether one is red depends on the moment)."""
-    room = -front_m
-    for e, nxt in zip(edges, [*edges[1:], None]):
-        if not net.hasEdge(e):
-            return None
-        edge = net.getEdge(e)
-        room += edge.getLength()
-        if nxt is None or not net.hasEdge(nxt):
-            return None
-        states = {c.getState() for c in edge.getConnections(net.getEdge(nxt))}
-        if states & set("m=sw"):
-            return room, edge.getToNode().getID()
-    return None
 
 
 def prepare_run_dir(sc: scenario_mod.Scenario, out: Path) -> Path:

@@ -602,7 +602,8 @@ _ROUTE_CASES = {
     "huge_flow_route": ('<flow id="x" route="r" begin="0" end="100" number="1000000000"/><route id="r" edges="W_in E_out"/>',
                         "more than the 20000 veh/h one flow may have"),
     "unknown_edges": ('<trip id="x" depart="1" from="W_in" to="Nowhere_out"/>', "The edge 'Nowhere_out' within the route for trip 'x' is not known"),
-    "no_movement": ('<vehicle id="x" depart="1"><route edges="W_in"/></vehicle>', "uses no movement of the junction"),
+    "no_movement": ('<vehicle id="x" depart="1"><route edges="W_in"/></vehicle>',
+                    "none of its 1 vehicles crosses a controlled junction"),
     "id_twice": ('<route id="r" edges="W_in E_out"/><vehicle id="a" route="r" depart="1"/>'
                  '<vehicle id="a" route="r" depart="2"/>', "the vehicle id 'a' is given twice"),
 }

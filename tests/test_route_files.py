@@ -336,11 +336,11 @@ def test_stops_in_a_route_file_are_left_out_with_a_warning(tmp_path):
     assert any("its 1 persons and containers are left out" in w for w in warnings), warnings  # (said nothing)
 
 
-def test_a_scale_copy_with_a_files_id_and_a_compressed_network_are_named(tmp_path):
+def test_a_scale_copy_with_a_files_id_is_named_and_compressed_files_run(tmp_path):
     """A route file's vehicle ``a#1`` beside the copy ``demand.scale = 2`` makes of ``a`` (named
     ``a#1`` too): the clash is named as such (the message had blamed [[vehicles]], which the scenario
-    does not have). A gzipped network (SUMO reads it; the checks read plain XML) is named as
-    compressed, not as "not well-formed"."""
+    does not have). A gzipped network and route file (as SUMO reads them) give the run of the plain
+    ones."""
     import gzip
     import shutil
 
@@ -358,7 +358,14 @@ def test_a_scale_copy_with_a_files_id_and_a_compressed_network_are_named(tmp_pat
     assert r.returncode == 2 and "by the copy that demand.scale = 2 makes" in r.stderr and "[[vehicles]]" not in r.stderr
     with open(d / "net.net.xml", "rb") as f, gzip.open(d / "net.net.xml.gz", "wb") as g:
         g.write(f.read())
-    (d / "b.toml").write_text(toml.format(net="net.net.xml.gz", scale=""))
-    r = _run(["run", d / "b.toml", "--out", tmp_path / "o"])
-    assert r.returncode == 2 and "net.net.xml.gz is compressed (gzip)" in r.stderr, r.stderr
-    assert not (tmp_path / "o").exists()
+    with open(d / "r.rou.xml", "rb") as f, gzip.open(d / "r.rou.xml.gz", "wb") as g:
+        g.write(f.read().replace(b'id="a#1"', b'id="b"'))
+    (d / "r.rou.xml").write_text((d / "r.rou.xml").read_text().replace('id="a#1"', 'id="b"'))
+    (d / "b.toml").write_text(toml.format(net="net.net.xml.gz", scale="").replace("r.rou.xml", "r.rou.xml.gz"))
+    (d / "c.toml").write_text(toml.format(net="net.net.xml", scale=""))
+    runs = []
+    for name in ("b", "c"):  # (compressed, plain: the same run)
+        r = _run(["run", d / f"{name}.toml", "--out", tmp_path / name])
+        assert r.returncode == 0, r.stderr
+        runs.append((tmp_path / name / "vehicles.csv").read_text())
+    assert runs[0] == runs[1] and runs[0].count("\n") == 3  # (a header and the two vehicles)

@@ -418,7 +418,7 @@ def test_a_flow_of_a_number_departs_as_sumo_departs_it_in_a_shorter_run(flow, ru
 
 @pytest.mark.parametrize("body, message", [
     ('<flow id="x" route="nope" begin="0" end="10" period="1"/>', "route 'nope' is not defined"),
-    ('<trip id="x" depart="1" from="W_in" to="W_out"/>', "uses no movement of the junction"),
+    ('<trip id="x" depart="1" from="W_in" to="W_out"/>', "none of its 1 vehicles crosses a controlled junction"),
     ('<flow id="x" from="W_in" to="E_out" begin="0" end="10"/>', "needs period, vehsPerHour, probability"),
     ('<flow id="x" from="W_in" to="E_out" begin="0" end="10" probability="2"/>', "probability must be in"),
     ('<trip id="x" depart="soon" from="W_in" to="E_out"/>', "depart='soon' is not a number"),

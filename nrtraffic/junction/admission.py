@@ -52,11 +52,13 @@ MIN_CRUISE_MPS = 1.0
 class Admission:
     """The admission decisions of every controlled junction of a run (``st``: its
     :class:`~nrtraffic.state.RunState`; ``departures``: vehicle id -> ``(route, depart_s,
-    speed_mps)`` of the demand, ``human_ids`` its human drivers, ``listed`` the ``[[vehicles]]``)."""
+    speed_mps)`` of the demand, ``human_ids`` its human drivers, ``listed`` the ``[[vehicles]]``,
+    ``paced`` those :attr:`~nrtraffic.demand.Demand.paced`)."""
 
-    def __init__(self, st, departures: dict, human_ids: set, listed: dict):
+    def __init__(self, st, departures: dict, human_ids: set, listed: dict, paced: set = frozenset()):
         self.st = st
         self.scheduled = departures  # not inserted yet; a vehicle's record is made when SUMO inserts it
+        self.paced = paced  # sent in slower than the entry speed by its first road (Demand.paced)
         self.human_ids = human_ids
         self.listed = listed
         self.batch = st.sc.coordinator.policy == "batch"
@@ -69,7 +71,8 @@ class Admission:
         if vid not in self.scheduled:  # not of the demand
             return
         trip, t, speed = self.scheduled.pop(vid)
-        speed = speed if speed >= MIN_CRUISE_MPS else st.sc.demand.entry_speed_mps  # (inserted standing)
+        paced = vid in self.paced or speed < MIN_CRUISE_MPS  # (inserted standing, or slowed at its start)
+        speed = speed if not paced else st.sc.demand.entry_speed_mps
         lv = self.listed.get(vid)
         human = vid in self.human_ids
         legs = st.itineraries.get(trip, (trip,))
@@ -95,8 +98,8 @@ class Admission:
         if rec.controlled:
             st.life.move(vid, State.APPROACHING)
             st.sumo.colour(vid, "approaching")
-            if (v0 := st.sumo.speed(vid)) >= MIN_CRUISE_MPS:  # (cruising to its zone; one inserted standing sets off)
-                st.sumo.hold_speed(vid, v0)
+            if not paced and (v0 := st.sumo.speed(vid)) >= MIN_CRUISE_MPS:  # (cruising to its zone; one inserted
+                st.sumo.hold_speed(vid, v0)  # standing, or slowed at its start, is driven there by SUMO)
         else:
             st.life.move(vid, State.SUMO)
             if rec.driver == "human" and st.control:

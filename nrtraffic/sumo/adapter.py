@@ -249,6 +249,7 @@ class SumoSession:
         self.step_length = float(step_length_s)
         self.traci = None
         self._pending_moves = False
+        self.unread: set[str] = set()  # vehicles never subscribed: left out of every snapshot
         from libsumo import constants as tc
 
         self._vars = (tc.VAR_LANE_ID, tc.VAR_LANEPOSITION, tc.VAR_POSITION, tc.VAR_ANGLE, tc.VAR_SPEED,
@@ -373,11 +374,13 @@ class SumoSession:
         return self.traci.simulation.getTime() - self.begin
 
     def departed(self) -> tuple[str, ...]:
-        """Vehicles inserted in the last step; each is subscribed to the variables that
-        :meth:`snapshot` reads."""
+        """Vehicles inserted in the last step; each (but those in :attr:`unread`) is subscribed to
+        the variables that :meth:`snapshot` reads."""
         ids = self.traci.simulation.getDepartedIDList()
         sub = self.traci.vehicle.subscribe
         for vid in ids:
+            if vid in self.unread:
+                continue
             sub(vid, self._vars)
             if self.gui:  # driven by SUMO until the run says otherwise (:meth:`colour`)
                 self.traci.vehicle.setColor(vid, self.COLOURS["sumo"])

@@ -25,13 +25,11 @@ from pathlib import Path
 import numpy as np
 
 from nrtraffic.limits import sumo_id_problem, sumo_time
+from nrtraffic.sumo.network import CAR_CLASS, give_way_room, open_xml, safe_depart_speed
 
 
 class DemandFileError(ValueError):
     """The demand file cannot be read or names what the junction does not have."""
-
-
-CAR_CLASS = "passenger"  # SUMO's vehicle class of nrtraffic's car (the lanes it may use)
 
 
 def _num(el, key: str, where: str, default=None) -> float:
@@ -89,8 +87,9 @@ def merged(paths: list[Path]) -> Path:
     where: dict[tuple[str, str], str] = {}  # (tag kind, id) -> the file that gives it first
     for p in paths:
         try:
-            elements = list(ET.parse(p).getroot())
-        except (OSError, ET.ParseError) as exc:
+            with open_xml(p) as f:
+                elements = list(ET.parse(f).getroot())
+        except (OSError, EOFError, ET.ParseError) as exc:
             raise DemandFileError(f"demand.sumo_routes {p}: cannot be read as XML: {exc}") from None
         for el in elements:  # (named here by its files: the merged file is nobody's)
             kind = "vehicle" if el.tag in ("vehicle", "trip", "flow") else el.tag
@@ -155,8 +154,9 @@ def routed(path: Path, net_path: Path) -> Path:
 
     path, net_path = Path(path), Path(net_path)
     try:
-        root = ET.parse(path).getroot()
-    except (OSError, ET.ParseError) as exc:
+        with open_xml(path) as f:
+            root = ET.parse(f).getroot()
+    except (OSError, EOFError, ET.ParseError) as exc:
         raise DemandFileError(f"demand.sumo_routes {path}: cannot be read as XML: {exc}") from None
     if not _unrouted(root):
         return path
@@ -198,16 +198,21 @@ def routed(path: Path, net_path: Path) -> Path:
 
 def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.random.Generator, end_s: float,
                      entry_speed_mps: float, net=None, source: str | None = None,
-                     notes: list[str] | None = None) -> list[tuple]:
+                     notes: list[str] | None = None, safe_start: tuple[float, float, float] | None = None,
+                     capped: set | None = None) -> list[tuple]:
     """Departures ``(vehicle_id, crossings, depart_s, depart_speed_mps, depart_pos_m, edges,
     depart_lane, vclass)`` of the file (``vclass``: SUMO's vClass of its ``<vType>``, "passenger"
     where it has none), up to ``end_s`` [s] for open-ended flows: ``crossings`` the
     movements its route takes, in order (``movements`` maps ``(incoming edge, outgoing edge)`` to a
-    movement name), ``edges`` its whole route. A route that crosses no controlled junction is an
-    error naming the element; with ``net`` (a sumolib network) so is a route over an edge the
-    network does not have, or over two edges it does not connect, and a ``departLane`` or
+    movement name; none for a route that crosses no controlled junction), ``edges`` its whole
+    route. A file none of whose vehicles crosses a controlled junction is an error; with ``net`` (a
+    sumolib network) so is a route over an edge the network does not have, or over two edges it does not connect, and a ``departLane`` or
     ``departPos`` its first edge does not have. ``departSpeed`` is used where it is a number, else
-    ``entry_speed_mps``; ``departPos`` where it is a number, else -1 (SUMO's ``base``);
+    ``entry_speed_mps``, with ``net`` at most the first edge's speed limit, and with ``safe_start``
+    (the front's position at ``base`` [m], the car's deceleration [m/s^2], SUMO's step [s]) at most
+    the speed from which it can stop before the first link of its route where it gives way
+    (:func:`~nrtraffic.sumo.network.safe_depart_speed`): the ids of the vehicles so slowed go to
+    ``capped``; ``departPos`` where it is a number, else -1 (SUMO's ``base``);
     ``departLane`` as given (a lane index or SUMO's word), else "best". A trip given by
     ``from``/``to`` that is not routed (:func:`routed`) is the two edges. ``source``: the file's
     name in messages (the user's, where ``path`` is its routed copy). ``notes``: where to say what
@@ -215,8 +220,9 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
     path = Path(path)
     label = source or path.name
     try:
-        root = ET.parse(path).getroot()
-    except (OSError, ET.ParseError) as exc:
+        with open_xml(path) as f:
+            root = ET.parse(f).getroot()
+    except (OSError, EOFError, ET.ParseError) as exc:
         raise DemandFileError(f"demand.sumo_routes {label}: cannot be read as XML: {exc}") from None
     routes = {r.get("id"): r.get("edges", "").split() for r in root.findall("route")}
     vclass = {t.get("id"): t.get("vClass", "passenger") for t in root.iter("vType")}
@@ -254,11 +260,7 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
                                           "nrtraffic's passenger car: leave such vehicles out of the file, or route "
                                           "them around it")
             checked.add(tuple(edges))
-        legs = tuple(movements[(a, b)] for a, b in zip(edges, edges[1:]) if (a, b) in movements)
-        if not legs:
-            raise DemandFileError(f"{where}: its route {' '.join(edges)!r} uses no movement of the junction "
-                                  f"(in -> out edges: {', '.join(f'{a} -> {b}' for a, b in movements)})")
-        return legs
+        return tuple(movements[(a, b)] for a, b in zip(edges, edges[1:]) if (a, b) in movements)
 
     def edges_of(el, where: str) -> list[str]:
         inner = el.find("route")
@@ -276,10 +278,18 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
             return routes[ref]
         raise DemandFileError(f"{where}: needs from/to, a route attribute or an inner <route>")
 
-    def speed(el, where: str) -> float:
+    def speed(el, where: str, edges: list[str], pos: float) -> float:
         v = el.get("departSpeed")
         if v is None or v in DEPART_SPEEDS:
-            return entry_speed_mps
+            if net is None:
+                return entry_speed_mps
+            # the entry speed, at most its first edge's speed limit and (with safe_start) the speed it
+            # can stop from before a link where it gives way, as SUMO's "max"
+            v0 = min(entry_speed_mps, net.getEdge(edges[0]).getSpeed())
+            room = give_way_room(net, edges, pos if pos >= 0 else safe_start[0]) if safe_start else None
+            if room is not None:
+                v0 = min(v0, math.floor(1000.0 * safe_depart_speed(room[0], *safe_start[1:])) / 1000.0)
+            return v0
         x = _num(el, "departSpeed", where)
         if x < 0:
             raise DemandFileError(f"{where}: departSpeed={v} is negative")
@@ -326,13 +336,16 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
         edges = edges_of(el, where)
         legs = crossings(edges, where)
         edges = tuple(edges)
-        v0, x0, ln = speed(el, where), position(el, where, edges[0]), lane(el, where, edges[0])
+        x0 = position(el, where, edges[0])
+        v0, ln = speed(el, where, edges, x0), lane(el, where, edges[0])
         kind = vclass.get(el.get("type"), "passenger")
         if tag in ("vehicle", "trip"):
             t = _num(el, "depart", where)
             if t < 0:
                 raise DemandFileError(f"{where}: depart={el.get('depart')} is negative (SUMO's clock starts at 0)")
             out.append((vid, legs, t, v0, x0, edges, ln, kind))
+            if capped is not None and v0 < entry_speed_mps and el.get("departSpeed") in (None, *DEPART_SPEEDS):
+                capped.add(vid)
             continue
         rates = [k for k in ("period", "vehsPerHour", "perHour", "probability") if el.get(k) is not None]
         if len(rates) > 1:  # (SUMO refuses it; the run took one of them)
@@ -397,9 +410,15 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
         if el.get("number") is not None and (el.get("period") is not None or el.get("vehsPerHour") is not None):
             times = times[:int(_num(el, "number", where))]
         out += [(f"{vid}.{k}", legs, float(t), v0, x0, edges, ln, kind) for k, t in enumerate(times)]
+        if capped is not None and v0 < entry_speed_mps and el.get("departSpeed") in (None, *DEPART_SPEEDS):
+            capped.update(f"{vid}.{k}" for k in range(len(times)))
     twice = sorted(i for i, n in Counter(o[0] for o in out).items() if n > 1)
     if twice:
         more = f" and {len(twice) - 1} more" if len(twice) > 1 else ""
         raise DemandFileError(f"demand.sumo_routes {label}: the vehicle id {twice[0]!r}{more} is given twice; "
                               "give each vehicle its own id")
+    if out and not any(o[1] for o in out):
+        raise DemandFileError(f"demand.sumo_routes {label}: none of its {len(out)} vehicles crosses a controlled "
+                              f"junction: no route uses one of its movements (in -> out edges: "
+                              f"{', '.join(f'{a} -> {b}' for a, b in movements)})")
     return out

@@ -95,11 +95,14 @@ def junction_kinds(net: Path, junction_ids) -> dict[str, str]:
     """SUMO's type of each of ``junction_ids`` in ``net`` (``priority``, ``traffic_light``, ...)."""
     import xml.etree.ElementTree as ET
 
+    from nrtraffic.sumo.network import open_xml
+
     wanted = set(junction_ids)
     kinds = {}
-    for _, el in ET.iterparse(net, events=("start",)):
-        if el.tag == "junction" and el.get("id") in wanted:
-            kinds[el.get("id")] = el.get("type", "")
+    with open_xml(net) as f:
+        for _, el in ET.iterparse(f, events=("start",)):
+            if el.tag == "junction" and el.get("id") in wanted:
+                kinds[el.get("id")] = el.get("type", "")
     return kinds
 
 
@@ -176,7 +179,10 @@ def actuated(net: Path, junction_ids, output: Path) -> Path:
     src = Path(net)
     if plain:
         src = with_junction_type(net, plain, "traffic_light", output, ("--tls.default-type", "actuated"))
-    tree = ET.parse(src)
+    from nrtraffic.sumo.network import open_xml
+
+    with open_xml(src) as f:
+        tree = ET.parse(f)
     root = tree.getroot()
     to_node = {e.get("id"): e.get("to") for e in root.iter("edge")}
     tls = {c.get("tl") for c in root.iter("connection") if c.get("tl") and to_node.get(c.get("from")) in junction_ids}

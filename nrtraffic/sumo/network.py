@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -66,13 +67,37 @@ def read_net(net_path: Path):
 def _read_net(path: str, mtime_ns: int, size: int):
     import sumolib
 
-    return sumolib.net.readNet(path, withInternal=True)
+    return sumolib.net.readNet(path, withInternal=True, withPrograms=True)
+
+
+def open_xml(path):
+    """A SUMO XML file opened for reading (binary), gzip-compressed (``.net.xml.gz``, ``.rou.xml.gz``,
+    as SUMO reads and writes them) or plain: for ElementTree's ``parse`` and ``iterparse``."""
+    f = open(path, "rb")
+    if f.read(2) == b"\x1f\x8b":
+        import gzip
+
+        f.close()
+        return gzip.open(path, "rb")
+    f.seek(0)
+    return f
+
+
+CAR_CLASS = "passenger"  # SUMO's vehicle class of nrtraffic's car: the lanes it may use
+
+
+def is_road(edge) -> bool:
+    """Whether a sumolib edge is a road a car may drive: a normal edge (not a junction's internal
+    lane, walking area or pedestrian crossing) with a lane that allows SUMO's passenger class (not a
+    footpath, cycle track or tram line)."""
+    return edge.getFunction() in ("", "normal") and any(lane.allows(CAR_CLASS) for lane in edge.getLanes())
 
 
 def junction_movements(net_path: Path, junction_id: str) -> tuple[list[JunctionMovement], tuple[float, float]]:
     """The movements through ``junction_id``, one per lane-to-lane connection of every incoming
-    lane (the first, where a lane connects to two lanes of the same road), U-turns included, and its
-    position. Two
+    lane a car may use (the first, where a lane connects to two lanes of the same road), U-turns
+    included, and its position; sidewalks, cycle lanes, walking areas and crossings are not
+    movements, and an approach's lanes count its car lanes only. Two
     roads reached from one incoming road with the same turn (SUMO's "l" and "L") are two turning
     movements (:attr:`JunctionMovement.twin`)."""
     net = read_net(net_path)
@@ -81,18 +106,19 @@ def junction_movements(net_path: Path, junction_id: str) -> tuple[list[JunctionM
     node = net.getNode(junction_id)
     out = []
     for edge in node.getIncoming():
-        if edge.getFunction() == "internal":
+        if not is_road(edge):  # (a junction's internal lanes, walking areas and crossings)
             continue
-        lanes = edge.getLanes()
-        for k, lane in enumerate(lanes):
+        lanes = [lane for lane in edge.getLanes() if lane.allows(CAR_CLASS)]  # (not its sidewalk or bike lane)
+        for lane in lanes:
             seen = set()
             for con in lane.getOutgoing():
-                turn = TURNS.get(con.getDirection(), con.getDirection())
                 to = con.getTo().getID()
-                if to in seen:
+                if to in seen or not is_road(con.getTo()) or not con.getToLane().allows(CAR_CLASS):
                     continue
+                turn = TURNS.get(con.getDirection(), con.getDirection())
                 seen.add(to)
-                out.append(JunctionMovement(edge.getID(), to, turn, k, con.getToLane().getIndex(), len(lanes)))
+                out.append(JunctionMovement(edge.getID(), to, turn, lane.getIndex(), con.getToLane().getIndex(),
+                                            len(lanes)))
     roads: dict[tuple[str, str], set[str]] = {}
     for m in out:
         roads.setdefault((m.in_edge, m.turn), set()).add(m.out_edge)
@@ -102,6 +128,44 @@ def junction_movements(net_path: Path, junction_id: str) -> tuple[list[JunctionM
                            f"connects through it to another road, so there is nothing to coordinate")
     x, y = node.getCoord()
     return out, (float(x), float(y))
+
+
+def give_way_room(net, edges, front_m: float) -> tuple[float, str] | None:
+    """The distance [m] from a departing vehicle's front (``front_m`` along the first of ``edges``)
+    to the first link of its route where it has no priority (a minor, equal, stop or all-way-stop
+    link, as SUMO's insertion sees it, or a traffic light's link that is never a major green), and
+    that junction's id; None where the route has none. Other traffic lights' links are left out
+    (whether one is red depends on the moment)."""
+    room = -front_m
+    for e, nxt in zip(edges, [*edges[1:], None]):
+        if not net.hasEdge(e):
+            return None
+        edge = net.getEdge(e)
+        room += edge.getLength()
+        if nxt is None or not net.hasEdge(nxt):
+            return None
+        links = edge.getConnections(net.getEdge(nxt))
+        if {c.getState() for c in links} & set("m=sw") or (links and all(_never_major(net, c) for c in links)):
+            return room, edge.getToNode().getID()
+    return None
+
+
+def _never_major(net, con) -> bool:
+    """Whether a connection is a traffic light's link that no phase of its programmes makes a major
+    green (``G``): a car must always be able to give way there (SUMO's insertion check)."""
+    if not con.getTLSID():
+        return False
+    k = con.getTLLinkIndex()
+    phases = [ph for prog in net.getTLS(con.getTLSID()).getPrograms().values() for ph in prog.getPhases()]
+    return bool(phases) and all(k >= len(ph.state) or ph.state[k] != "G" for ph in phases)
+
+
+def safe_depart_speed(room_m: float, decel_mps2: float, step_s: float) -> float:
+    """The highest speed [m/s] at which a car can depart ``room_m`` [m] before a link where it must
+    give way and still stop before it, braking at ``decel_mps2`` from the next step of ``step_s`` [s]
+    on (SUMO's insertion check: ``v^2 + 2 v decel step <= 2 decel room``)."""
+    b = decel_mps2 * step_s
+    return max(0.0, -b + math.sqrt(b * b + 2.0 * decel_mps2 * max(room_m, 0.0)))
 
 
 def feeder_roads(net_path: Path, edge_id: str, stop_at: set[str]) -> tuple[str, ...]:
@@ -117,9 +181,9 @@ def feeder_roads(net_path: Path, edge_id: str, stop_at: set[str]) -> tuple[str, 
         node = edge.getFromNode()
         if node.getID() in stop_at:
             break
-        normal = [e for e in (*node.getIncoming(), *node.getOutgoing()) if e.getFunction() != "internal"]
+        normal = [e for e in (*node.getIncoming(), *node.getOutgoing()) if is_road(e)]
         neighbours = {(e.getFromNode() if e.getToNode() is node else e.getToNode()).getID() for e in normal}
-        ins = [e for e in node.getIncoming() if e.getFunction() != "internal" and e.getFromNode() is not edge.getToNode()]
+        ins = [e for e in node.getIncoming() if is_road(e) and e.getFromNode() is not edge.getToNode()]
         if len(neighbours) != 2 or len(ins) != 1 or ins[0].getID() in seen or edge not in ins[0].getOutgoing():
             break
         edge = ins[0]
@@ -145,25 +209,18 @@ def check_scenario(net_path: Path, junction_ids=(), edges: tuple[str, ...] = ())
 
     try:
         root_tag, nodes, edge_ids = None, set(), set()
-        for _, el in ET.iterparse(net_path, events=("start",)):
-            if root_tag is None:
-                root_tag = el.tag
-                if root_tag != "net":
-                    raise NetworkError(f"{net_path} is not a SUMO network (its root element is <{root_tag}>)")
-            elif el.tag == "junction":
-                nodes.add(el.get("id"))
-            elif el.tag == "edge" and el.get("function") != "internal":
-                edge_ids.add(el.get("id"))
-    except ET.ParseError as exc:
-        try:
-            with open(net_path, "rb") as f:
-                packed = f.read(2) == b"\x1f\x8b"
-        except OSError:
-            packed = False
-        if packed:  # (SUMO reads it; the checks and the run's geometry read plain XML)
-            raise NetworkError(f"{net_path} is compressed (gzip): give the network as plain XML (gunzip -k "
-                               f"{net_path.name}, then name the .net.xml)") from None
-        raise NetworkError(f"{net_path} is not a readable SUMO network: {exc}") from None
+        with open_xml(net_path) as f:
+            for _, el in ET.iterparse(f, events=("start",)):
+                if root_tag is None:
+                    root_tag = el.tag
+                    if root_tag != "net":
+                        raise NetworkError(f"{net_path} is not a SUMO network (its root element is <{root_tag}>)")
+                elif el.tag == "junction":
+                    nodes.add(el.get("id"))
+                elif el.tag == "edge" and el.get("function") != "internal":
+                    edge_ids.add(el.get("id"))
+    except (ET.ParseError, EOFError) as exc:  # (EOFError: a gzip file cut short)
+        raise NetworkError(f"{net_path} is not a readable SUMO network: {exc or 'it ends early'}") from None
     except OSError as exc:
         raise NetworkError(f"{net_path} cannot be read: {exc}") from None
     problems = []

@@ -1,0 +1,164 @@
+"""Roads as OpenStreetMap imports draw them: sidewalks, cycle lanes and pedestrian crossings at the
+controlled junction, and a city's route file, most of whose vehicles never pass it. The network is
+built by SUMO's netconvert; what is a car's lane, which vehicles SUMO inserted and which finished
+their trips are read from the network file and SUMO's own outputs."""
+
+import json
+import math
+import subprocess
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from nrtraffic import scenario
+from nrtraffic.engine import Engine
+from nrtraffic.sumo.demandfile import read_sumo_demand
+from nrtraffic.sumo.netbuild import sumo_binary
+from nrtraffic.sumo.network import junction_movements, read_net, safe_depart_speed
+from runners.single import run_scenario
+
+NODES = """<nodes>
+  <node id="C" x="0" y="0" type="priority"/>
+  <node id="N" x="0" y="300"/> <node id="S" x="0" y="-300"/> <node id="E" x="300" y="0"/> <node id="W" x="-300" y="0"/>
+  <node id="WW" x="-600" y="0"/>
+  <node id="X1" x="0" y="900"/> <node id="X2" x="400" y="900"/>
+</nodes>"""
+# every arm has a sidewalk; the north-south road also a cycle lane; W_C is fed by a 30 km/h street;
+# X1_X2 is a road of its own, nowhere near the junction
+EDGES = """<edges>
+  <edge id="N_C" from="N" to="C" numLanes="1" speed="13.89" sidewalkWidth="2.0" bikeLaneWidth="1.5"/>
+  <edge id="C_N" from="C" to="N" numLanes="1" speed="13.89" sidewalkWidth="2.0" bikeLaneWidth="1.5"/>
+  <edge id="S_C" from="S" to="C" numLanes="1" speed="13.89" sidewalkWidth="2.0" bikeLaneWidth="1.5"/>
+  <edge id="C_S" from="C" to="S" numLanes="1" speed="13.89" sidewalkWidth="2.0" bikeLaneWidth="1.5"/>
+  <edge id="E_C" from="E" to="C" numLanes="1" speed="13.89" sidewalkWidth="2.0"/>
+  <edge id="C_E" from="C" to="E" numLanes="1" speed="13.89" sidewalkWidth="2.0"/>
+  <edge id="W_C" from="W" to="C" numLanes="1" speed="13.89" sidewalkWidth="2.0"/>
+  <edge id="C_W" from="C" to="W" numLanes="1" speed="13.89" sidewalkWidth="2.0"/>
+  <edge id="WW_W" from="WW" to="W" numLanes="1" speed="8.33" sidewalkWidth="2.0"/>
+  <edge id="X1_X2" from="X1" to="X2" numLanes="1" speed="13.89"/>
+</edges>"""
+
+
+@pytest.fixture(scope="module")
+def city(tmp_path_factory):
+    """A scenario folder: the junction C of a netconvert network with sidewalks, cycle lanes and
+    crossings (turning radius 10 m, as an engineer would draw it), and a route file."""
+    d = tmp_path_factory.mktemp("city")
+    (d / "n.nod.xml").write_text(NODES)
+    (d / "n.edg.xml").write_text(EDGES)
+    subprocess.run([str(sumo_binary("netconvert")), "-n", str(d / "n.nod.xml"), "-e", str(d / "n.edg.xml"),
+                    "--crossings.guess", "--walkingareas", "--no-turnarounds", "--default.junctions.radius", "10",
+                    "--junctions.internal-link-detail", "20", "-o", str(d / "net.net.xml")],
+                   check=True, capture_output=True)
+    return d
+
+
+def _car_lanes(net_file) -> set[str]:
+    """The lanes a passenger car may use, from the network file's allow/disallow attributes."""
+    cars = set()
+    for edge in ET.parse(net_file).getroot().iter("edge"):
+        for lane in edge.iter("lane"):
+            allow, disallow = lane.get("allow"), lane.get("disallow", "")
+            if (allow is None or "passenger" in allow.split()) and "passenger" not in disallow.split():
+                cars.add(lane.get("id"))
+    return cars
+
+
+def test_sidewalks_cycle_lanes_and_crossings_are_not_movements(city):
+    net = city / "net.net.xml"
+    cars = _car_lanes(net)
+    expected = set()
+    for c in ET.parse(net).getroot().iter("connection"):
+        frm, to = f"{c.get('from')}_{c.get('fromLane')}", f"{c.get('to')}_{c.get('toLane')}"
+        if not c.get("from").startswith(":") and frm.startswith(("N_C", "S_C", "E_C", "W_C")) and frm in cars \
+                and to in cars:
+            expected.add((c.get("from"), c.get("to"), int(c.get("fromLane"))))
+    moves, _ = junction_movements(net, "C")
+    assert {(m.in_edge, m.out_edge, m.in_lane) for m in moves} == expected
+    assert len(expected) == 12  # (four arms, three turns each: no U-turns)
+    # an approach with a sidewalk (and a cycle lane) beside its one car lane is a one-lane approach
+    assert all(m.in_lanes == 1 and m.name == m.route for m in moves)
+    assert all(m.lane in cars and m.in_lane > 0 for m in moves)  # (lane 0 is the sidewalk)
+
+
+def _scenario(city, body: str = "") -> scenario.Scenario:
+    (city / "scenario.toml").write_text(f"""
+[scenario]
+name = "city"
+network = "net.net.xml"
+duration_s = 150.0
+
+[junction]
+id = "C"
+
+[zones]
+control_zone_m = 250.0
+merging_zone_m = 40.0
+{body}""")
+    return scenario.load(city / "scenario.toml")
+
+
+def test_a_junction_with_sidewalks_and_crossings_runs_on_its_car_lanes(city, tmp_path):
+    # (the entry speed within the 30 km/h of the street that feeds the west arm)
+    sc = _scenario(city, "\n[demand]\nrate_veh_h = 400.0\nturn_left = 0.2\nturn_right = 0.2\nentry_speed_mps = 8.0\n")
+    s = run_scenario(sc, tmp_path / "run").summary
+    assert s["status"] == "ok" and s["collisions"] == 0 and s["collisions_geometric"] == 0
+    # (at 8 m/s a car takes about 30 s through its zone: those entering at the window's end are not served)
+    assert s["vehicles_demanded"] > 25 and s["served_share"] > 0.75
+    cars = _car_lanes(city / "net.net.xml")
+    paths = json.loads((tmp_path / "run" / "movements.json").read_text())
+    lanes = [ln for m in paths["movements"].values() for ln in m["lanes"]]
+    # every path runs on car lanes, and through the junction on its internal lanes for cars
+    assert lanes and all(ln in cars for ln in lanes)
+    # SUMO's own record: the vehicles that finished their trips all crossed the junction in the run
+    trips = {t.get("id") for t in ET.parse(tmp_path / "run" / "tripinfo.xml").getroot().iter("tripinfo")}
+    crossed = pd.read_csv(tmp_path / "run" / "vehicles.csv").dropna(subset=["t_exit_s"])["vehicle_id"]
+    assert trips and trips <= set(crossed)
+
+
+ROUTES = """<routes>
+  <vehicle id="through.0" depart="0"><route edges="WW_W W_C C_E"/></vehicle>
+  <vehicle id="through.1" depart="4"><route edges="N_C C_S"/></vehicle>
+  <vehicle id="through.2" depart="8"><route edges="WW_W W_C C_N"/></vehicle>
+  <vehicle id="away.0" depart="1"><route edges="X1_X2"/></vehicle>
+  <vehicle id="away.1" depart="6"><route edges="X1_X2"/></vehicle>
+  <vehicle id="exit.0" depart="2" departSpeed="5"><route edges="C_E"/></vehicle>
+</routes>"""
+
+
+def test_vehicles_that_cross_no_controlled_junction_are_driven_by_sumo_and_left_out(city, tmp_path):
+    """A city's route file: SUMO drives the vehicles that never pass the junction (they finish
+    their trips, in SUMO's tripinfo), the run's figures leave them out, and those nowhere near the
+    junction are never read."""
+    (city / "city.rou.xml").write_text(ROUTES)
+    sc = _scenario(city, '\n[demand]\nsumo_routes = "city.rou.xml"\n')
+    eng = Engine(sc, tmp_path / "run", duration_s=150.0)
+    eng.run()
+    trips = {t.get("id") for t in ET.parse(tmp_path / "run" / "tripinfo.xml").getroot().iter("tripinfo")}
+    assert {"away.0", "away.1", "exit.0", "through.0", "through.1", "through.2"} <= trips  # (all arrived)
+    assert eng.st.sumo.unread == {"away.0", "away.1"}  # (X1_X2 is no road of the junction's paths)
+    assert sorted(eng.st.records) == ["through.0", "through.1", "through.2"]
+    assert any("3 of its vehicles cross no controlled junction" in n for n in eng.demand.notes)
+    assert all(r.t_exit > 0 for r in eng.st.records.values())
+
+
+def test_a_file_whose_first_road_is_slower_departs_at_its_limit(city):
+    """No departSpeed: the entry speed, at most the first edge's limit (8.33 m/s on WW_W); such a
+    vehicle's free-flow speed stays the entry speed (Demand.paced)."""
+    p = city / "slow.rou.xml"
+    p.write_text(ROUTES)
+    moves = {(m.in_edge, m.out_edge): m.route for m in junction_movements(city / "net.net.xml", "C")[0]}
+    capped: set[str] = set()
+    dep = {v[0]: v for v in read_sumo_demand(p, moves, np.random.default_rng(1), math.inf, 13.4,
+                                             net=read_net(city / "net.net.xml"), capped=capped)}
+    assert dep["through.0"][3] == pytest.approx(8.33) and dep["through.1"][3] == 13.4
+    assert dep["exit.0"][3] == 5.0 and dep["away.0"][1] == ()  # (a number is kept; no crossing)
+    assert capped == {"through.0", "through.2"}
+
+
+@pytest.mark.parametrize("room, decel, step", [(8.4, 4.5, 0.1), (30.0, 4.5, 0.1), (0.0, 4.5, 0.1), (12.0, 7.5, 1.0)])
+def test_safe_depart_speed_meets_sumos_insertion_condition_with_equality(room, decel, step):
+    v = safe_depart_speed(room, decel, step)
+    assert v >= 0.0 and v * v + 2.0 * v * decel * step == pytest.approx(2.0 * decel * room, abs=1e-9)
