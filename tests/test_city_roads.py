@@ -162,3 +162,24 @@ def test_a_file_whose_first_road_is_slower_departs_at_its_limit(city):
 def test_safe_depart_speed_meets_sumos_insertion_condition_with_equality(room, decel, step):
     v = safe_depart_speed(room, decel, step)
     assert v >= 0.0 and v * v + 2.0 * v * decel * step == pytest.approx(2.0 * decel * room, abs=1e-9)
+
+
+def test_a_city_junction_in_its_calibrated_demand_keeps_every_lane_moving(tmp_path):
+    """sumo_scenarios/doerpfeldstr, a cut of a public city scenario, its first 300 s: on an approach
+    fed by several roads, a car ahead may have departed after the cars behind it. One such car,
+    held at its stop line, had been passed over for ever behind the cars that waited for it, and
+    its lane stood still from 205 s on while the run said "ok" (the other arms kept the junction
+    crossing). Now every held car crosses, and every car that entered the control zone more than
+    a minute before the end left it."""
+    from conftest import SCENARIOS
+
+    sc = scenario.load(SCENARIOS / "doerpfeldstr" / "scenario.toml")
+    out = tmp_path / "run"
+    s = run_scenario(sc, out, duration_s=300.0).summary
+    assert s["status"] == "ok" and s["collisions"] == 0 and s["collisions_geometric"] == 0
+    assert any("of its vehicles cross no controlled junction" in w for w in s["warnings"])
+    v = pd.read_csv(out / "vehicles.csv")
+    late = v[(v["t_arrive_s"] < 240.0) & v["t_exit_s"].isna()]
+    assert late.empty, late[["vehicle_id", "lane", "t_arrive_s", "status"]]
+    assert (v["t_held_s"] > 0).sum() >= 5  # (the situation arises)
+    assert s["vehicles_waiting_to_enter"] == 0

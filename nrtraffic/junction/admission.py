@@ -143,21 +143,34 @@ class Admission:
             self.admit_batch(dt)
             return
         life = self.st.life
-        blocked: set[str] = set()  # lanes whose first waiting vehicle could not be admitted
+        # lanes whose first waiting vehicle could not be admitted -> where it is on its path [m]: the
+        # vehicles behind it wait (a vehicle ahead of it, looked at later, does not: a held vehicle
+        # comes after the approaching ones behind it, which wait for it)
+        blocked: dict[str, float] = {}
         for vid in life.members(State.APPROACHING, State.HELD):
             rec = self.st.records[vid]
-            if rec.lane in blocked:
+            if rec.lane in blocked and not self._ahead(vid, blocked[rec.lane]):
                 continue
             if ((rec.hindered or self.blocked_ahead(vid)) and self.request(vid, entry_only=True)
                     and self.hindered(vid)):  # waits for a human ahead, or starts from the stop line
                 if rec.status != "starting":
-                    blocked.add(rec.lane)
+                    blocked[rec.lane] = self._where(vid)
                 continue
             state = self.try_admit(vid)
             if state == "held":
-                blocked.add(rec.lane)
+                blocked[rec.lane] = self._where(vid)
                 rec.t_held += dt
         account_waiting(self.st, life.members(State.HELD) + life.members(State.STARTING), dt)
+
+    def _where(self, vid: str) -> float:
+        """Where a vehicle's centre of gravity is on its path now [m] (-inf where SUMO does not have
+        it on its path's lanes)."""
+        s = self.st.cg_on_path(vid) if vid in self.st.snap.row else None
+        return -math.inf if s is None else s
+
+    def _ahead(self, vid: str, s_m: float) -> bool:
+        """Whether ``vid`` is ahead of the point ``s_m`` [m] of its path."""
+        return self._where(vid) > s_m
 
     def request(self, vid: str, entry_only: bool = False):
         """What a vehicle whose centre of gravity crossed the control-zone entry asks of the
