@@ -269,6 +269,8 @@ class Demand:
         from the start of the road that feeds its first approach (``Layout.feeders``)."""
         if route in self.file_routes:
             return self.file_routes[route]
+        if route in self.background_routes:
+            return self.background_routes[route]
         legs = self.legs(route)
         edges = [*self.layout.feeders.get(legs[0], ()), *self.movement_table[legs[0]][2]]
         for leg in legs[1:]:

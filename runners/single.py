@@ -64,7 +64,7 @@ def check_demand(sc: scenario_mod.Scenario, seed: int | None, duration_s: float 
                     where += f" (demand.depart_offset_s = {d.depart_offset_s:g} s shifts each departure)"
             raise scenario_mod.ScenarioError(f"the demand gives the run no vehicle ({where}): check the demand, "
                                              "and the run's length (--duration, scenario.duration_s)")
-        _check_depart_speeds(sc, demand, departures)
+        _check_depart_speeds(sc, demand, [*departures, *demand.background])  # (SUMO inserts both)
         check_window(sc, duration_s)  # (last: what is wrong in the scenario itself is said first)
         return len(departures)
     except scenario_mod.ScenarioError:

@@ -183,3 +183,16 @@ def test_a_city_junction_in_its_calibrated_demand_keeps_every_lane_moving(tmp_pa
     assert late.empty, late[["vehicle_id", "lane", "t_arrive_s", "status"]]
     assert (v["t_held_s"] > 0).sum() >= 5  # (the situation arises)
     assert s["vehicles_waiting_to_enter"] == 0
+
+
+def test_a_background_vehicle_too_fast_for_its_first_road_is_refused_before_sumo_starts(city, tmp_path, capsys):
+    """SUMO refuses a departure faster than its edge's limit mid-run: a background vehicle's is
+    checked with the others', before SUMO starts (exit 2, naming it)."""
+    from runners.cli import main
+
+    (city / "fast.rou.xml").write_text(ROUTES.replace('id="away.1" depart="6"', 'id="away.1" depart="6" departSpeed="20"'))
+    _scenario(city, '\n[demand]\nsumo_routes = "fast.rou.xml"\n')
+    out = tmp_path / "run"
+    assert main(["run", str(city / "scenario.toml"), "--out", str(out), "--duration", "30", "--no-progress"]) == 2
+    assert "vehicle away.1 departs at 20 m/s on edge X1_X2" in capsys.readouterr().err
+    assert not out.exists()
