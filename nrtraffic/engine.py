@@ -36,6 +36,7 @@ import numpy as np
 from nrtraffic import __version__, measure, metrics
 from nrtraffic.control import batch as kb
 from nrtraffic.control.kernel import Kernel
+from nrtraffic.background import Background
 from nrtraffic.demand import Demand
 from nrtraffic.junction import Layout, build, humans
 from nrtraffic.junction.admission import Admission
@@ -48,7 +49,7 @@ from nrtraffic.results import (RunFacts, RunResult, TrajectoryWriter, approach_t
 from nrtraffic.state import RunState
 from nrtraffic.watchdog import Gridlock, OpenEnd, watch_junctions
 from nrtraffic.sumo.adapter import SumoSession, VehicleType, handover_tau_s, sumo_version, write_sumocfg
-from nrtraffic.sumo.network import NetworkError, edge_of
+from nrtraffic.sumo.network import NetworkError
 
 CHECKPOINT_WALL_S = 10.0  # wall time between checkpoints of the figures (``checkpoint``) [s]
 GUI_MARGIN_M = 50.0  # sumo-gui opens on the merging zones with this much road around them [m]
@@ -168,11 +169,6 @@ class Engine:
         # wall time per part of the tick [s] (summary.json ``wall_time_breakdown_s``; benchmarks)
         self.wall_breakdown = dict.fromkeys(WALL_PHASES, 0.0)
         self._open_end = OpenEnd()  # (a run without a duration) the watch that it can end
-        # a route file's vehicles that cross no controlled junction, read while near the junctions
-        # (_watch_background): vehicle -> the roads of its route past the last one a movement's path
-        # takes; those in SUMO's network now
-        self._background_after: dict[str, frozenset] = {}
-        self._background: dict[str, frozenset] = {}
 
     @property
     def t(self) -> float:
@@ -226,7 +222,7 @@ class Engine:
                 gui_delay_ms=self.gui_delay_ms)
             with st.sumo:
                 self._build_junctions(st)
-                self._watch_background(st)
+                self.background = Background(self.demand, st)
                 if self.gui:
                     self._show_junctions()
                 self._loop()
@@ -270,22 +266,6 @@ class Engine:
         for j in self.layout.junctions.values():
             j.coord = Coordinator(self.sc.coordinator, self.sc.planning, j.relations, areas=j.conflict_areas,
                                   human_margin_s=self.sc.human.conflict_margin_s)
-
-    def _watch_background(self, st: RunState) -> None:
-        """A route file's vehicles that cross no controlled junction (:attr:`Demand.background`):
-        those whose route never touches the roads of a movement's path are never read (SUMO drives
-        them where the run does not look); the others are read (a leader, a queue on an exit road)
-        until they are past the last such road of their route (:meth:`_forget_far`)."""
-        if not self.demand.background:
-            return
-        watched = {edge_of(ln) for mv in st.paths.values() for ln in mv.lanes if not ln.startswith(":")}
-        routes = self.demand.background_routes
-        after: dict[str, frozenset | None] = {}
-        for key, edges in routes.items():
-            last = max((k for k, e in enumerate(edges) if e in watched), default=None)
-            after[key] = None if last is None else frozenset(edges[last + 1:]) - watched
-        st.sumo.unread = {vid for vid, key, *_ in self.demand.background if after[key] is None}
-        self._background_after = {vid: after[key] for vid, key, *_ in self.demand.background if after[key] is not None}
 
     def _show_junctions(self) -> None:
         """sumo-gui opens on the controlled junctions: their merging zones with ``GUI_MARGIN_M``
@@ -358,8 +338,7 @@ class Engine:
         # 1. read SUMO
         for vid in sumo.departed():
             adm.depart(vid, dt)
-            if vid in self._background_after:  # (a route file's vehicle that crosses no controlled junction)
-                self._background[vid] = self._background_after[vid]
+            self.background.departed(vid)
         st.snap = sumo.snapshot()
         driven = measure.track_sumo_driven(st, dt, adm.next_leg)
         if adm.human_ids:
@@ -440,13 +419,7 @@ class Engine:
         which then grows with the traffic near the junction, not with the length of the exit roads
         (SUMO's own collision check still covers them)."""
         st, tab = self.st, self.st.snap
-        for vid, done in list(self._background.items()):  # (a route file's vehicle past the roads the run looks at)
-            k = tab.row.get(vid)
-            if k is None:  # it left the network
-                del self._background[vid]
-            elif edge_of(tab.lane[k]) in done:
-                st.sumo.forget(vid)
-                del self._background[vid]
+        self.background.forget_past(st)
         for vid in st.life.members(State.RELEASED):
             k = tab.row.get(vid)
             if k is None:  # it left the network

@@ -8,6 +8,7 @@ One :class:`RunState` per run, made by the engine; the junctions' admission
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 from nrtraffic.junction import Junction, Layout, Movement
@@ -47,6 +48,11 @@ class RunState:
         if self.snap.lane[k] not in mv.lane_offset:
             return None
         return mv.s_of(self.snap.lane[k], float(self.snap.lane_pos[k])) - self.params.cg_to_front
+
+    def where_on_path(self, vid: str) -> float:
+        """:meth:`cg_on_path`, -inf where SUMO does not have the vehicle on its path's lanes now."""
+        s = self.cg_on_path(vid) if vid in self.snap.row else None
+        return -math.inf if s is None else s
 
     def choose_lane(self, vid: str, lane: str) -> bool:
         """A vehicle that SUMO lets change lanes (``lane_kept`` false) is on ``lane`` now: where a

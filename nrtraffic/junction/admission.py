@@ -143,34 +143,23 @@ class Admission:
             self.admit_batch(dt)
             return
         life = self.st.life
-        # lanes whose first waiting vehicle could not be admitted -> where it is on its path [m]: the
-        # vehicles behind it wait (a vehicle ahead of it, looked at later, does not: a held vehicle
-        # comes after the approaching ones behind it, which wait for it)
+        # lanes whose first waiting vehicle could not be admitted -> where it is [m]: those behind it
+        # wait (one ahead of it may come later in this order: a held vehicle departed after them)
         blocked: dict[str, float] = {}
         for vid in life.members(State.APPROACHING, State.HELD):
             rec = self.st.records[vid]
-            if rec.lane in blocked and not self._ahead(vid, blocked[rec.lane]):
+            if rec.lane in blocked and self.st.where_on_path(vid) <= blocked[rec.lane]:
                 continue
             if ((rec.hindered or self.blocked_ahead(vid)) and self.request(vid, entry_only=True)
                     and self.hindered(vid)):  # waits for a human ahead, or starts from the stop line
                 if rec.status != "starting":
-                    blocked[rec.lane] = self._where(vid)
+                    blocked[rec.lane] = self.st.where_on_path(vid)
                 continue
             state = self.try_admit(vid)
             if state == "held":
-                blocked[rec.lane] = self._where(vid)
+                blocked[rec.lane] = self.st.where_on_path(vid)
                 rec.t_held += dt
         account_waiting(self.st, life.members(State.HELD) + life.members(State.STARTING), dt)
-
-    def _where(self, vid: str) -> float:
-        """Where a vehicle's centre of gravity is on its path now [m] (-inf where SUMO does not have
-        it on its path's lanes)."""
-        s = self.st.cg_on_path(vid) if vid in self.st.snap.row else None
-        return -math.inf if s is None else s
-
-    def _ahead(self, vid: str, s_m: float) -> bool:
-        """Whether ``vid`` is ahead of the point ``s_m`` [m] of its path."""
-        return self._where(vid) > s_m
 
     def request(self, vid: str, entry_only: bool = False):
         """What a vehicle whose centre of gravity crossed the control-zone entry asks of the
@@ -275,7 +264,7 @@ class Admission:
             if rec.status == "held":
                 rec.t_held += dt
         account_waiting(st, pending, dt)
-        if not pending or (st.t < j.batch_closes - 1e-9 and not self.must_close(pending, waiting)):
+        if not pending or (st.t < j.batch_closes - 1e-9 and not must_close(st, pending, waiting)):
             return
         got = {}
         for vid in pending:
@@ -294,26 +283,6 @@ class Admission:
         for vid in held:
             self.hold(vid)
         j.batch_closes = st.t + st.sc.coordinator.batch_window_s if self.pending(j) else math.inf
-
-    def must_close(self, pending: list[str], waiting: set[str]) -> bool:
-        """Whether a batch must close before its window ends: a vehicle in it (driven on by SUMO at
-        its speed) comes within ``BATCH_CLOSE_S`` of the last point where it can still stop before
-        the merging zone at the planning's ``u_min`` (on a short control zone that is as soon as
-        it enters: it is scheduled from its state on entry)."""
-        st = self.st
-        tab = st.snap
-        brake = -st.sc.planning.u_min_mps2
-        for vid in pending:
-            k = tab.row.get(vid)
-            if vid in waiting or k is None:
-                continue
-            s = st.cg_on_path(vid)
-            if s is None:
-                continue
-            v = float(tab.speed[k])
-            if st.paths[st.records[vid].movement].s_merge - s <= v * v / (2.0 * brake) + v * BATCH_CLOSE_S:
-                return True
-        return False
 
     def hold(self, vid: str) -> None:
         """No merge time for a vehicle in the control zone now (``held``): SUMO drives it on to a
@@ -511,3 +480,24 @@ def account_waiting(st, vids: list[str], dt: float) -> None:
         acc = st.records[vid].acc
         acc[kb.ACC_ENERGY] += 0.5 * a * a * dt
         acc[kb.ACC_FUEL] += fuel_rate(v, a) * dt
+
+
+def must_close(st, pending: list[str], waiting: set[str]) -> bool:
+    """Whether a batch (``pending``, of run ``st``; ``waiting`` those behind a human) must close
+    before its window ends: a vehicle in it (driven on by SUMO at its speed) comes within
+    ``BATCH_CLOSE_S`` of the last point where it can still stop before the merging zone at the
+    planning's ``u_min`` (on a short control zone that is as soon as it enters: it is scheduled
+    from its state on entry)."""
+    tab = st.snap
+    brake = -st.sc.planning.u_min_mps2
+    for vid in pending:
+        k = tab.row.get(vid)
+        if vid in waiting or k is None:
+            continue
+        s = st.cg_on_path(vid)
+        if s is None:
+            continue
+        v = float(tab.speed[k])
+        if st.paths[st.records[vid].movement].s_merge - s <= v * v / (2.0 * brake) + v * BATCH_CLOSE_S:
+            return True
+    return False
