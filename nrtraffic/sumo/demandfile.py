@@ -206,8 +206,8 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
     movements its route takes, in order (``movements`` maps ``(incoming edge, outgoing edge)`` to a
     movement name; none for a route that crosses no controlled junction), ``edges`` its whole
     route. A file none of whose vehicles crosses a controlled junction is an error; with ``net`` (a
-    sumolib network) so is a route over an edge the network does not have, or over two edges it does not connect, and a ``departLane`` or
-    ``departPos`` its first edge does not have. ``departSpeed`` is used where it is a number, else
+    sumolib network) so is a route over an edge the network does not have, or over two edges it
+    does not connect, and a ``departLane`` or ``departPos`` its first edge does not have. ``departSpeed`` is used where it is a number, else
     ``entry_speed_mps``, with ``net`` at most the first edge's speed limit, and with ``safe_start``
     (the front's position at ``base`` [m], the car's deceleration [m/s^2], SUMO's step [s]) at most
     the speed from which it can stop before the first link of its route where it gives way
