@@ -160,28 +160,23 @@ class Demand:
         net = read_net(self.sc.network_path)
         files = d.route_files(self.sc.base_dir)
         safe = (self.sc.vehicle.params().length, VehicleType.decel_mps2, self.sc.sumo.step_length_s)
-        capped: set[str] = set()
         read = read_sumo_demand(routed(merged(files), self.sc.network_path), by_edges, rng, t0 + end, d.entry_speed_mps,
-                                net=net, source=", ".join(f.name for f in files), notes=self.notes, safe_start=safe,
-                                capped=capped)
+                                net=net, source=", ".join(f.name for f in files), notes=self.notes, safe_start=safe)
         named: dict[tuple, str] = {}
         variants: dict[tuple, int] = {}  # crossings -> routes named for them so far
         veh = []
         classes: dict[str, int] = {}
-        ids = [v[0] for v in read]
         if d.scale != 1.0:  # SUMO's --scale: each vehicle int(scale) times, and once more with the rest's chance
             whole, rest = divmod(d.scale, 1.0)
             copies = int(whole) + (rng.random(len(read)) < rest)
             read = [(v[0] if k == 0 else f"{v[0]}#{k}", *v[1:]) for v, n in zip(read, copies.tolist())
                     for k in range(n)]
-            capped = {f"{vid}#{k}" if k else vid for vid, n in zip(ids, copies.tolist()) for k in range(n)
-                      if vid in capped}
         offsets = rng.uniform(0.0, d.depart_offset_s, len(read)) if d.depart_offset_s > 0 else np.zeros(len(read))
-        for (vid, legs, t, v0, pos, edges, lane, vclass), extra in zip(read, offsets.tolist()):
+        for (vid, legs, t, v0, pos, edges, lane, vclass, slowed), extra in zip(read, offsets.tolist()):
             t += extra - t0  # (SUMO's --random-depart-offset, drawn from the run's seed)
             if t < -1e-9:  # (before the run's start: SUMO does not insert it either)
                 continue
-            if vid in capped and legs:
+            if slowed and legs:
                 self.paced.add(vid)
             if not legs:  # (crosses no controlled junction: SUMO drives it, the figures leave it out)
                 key = named.get(((), edges))

@@ -162,6 +162,7 @@ class Engine:
         self.demand: Demand | None = None
         self.st: RunState | None = None
         self.admission: Admission | None = None
+        self.background: Background | None = None  # (made once the junctions' paths are built)
         self.zone_cuts: dict[str, float] = {}  # movement -> its control zone's length where it was cut [m]
         self.collisions_sumo: set[tuple[str, str]] = set()
         self.collisions_geometric: set[tuple[str, str]] = set()

@@ -104,7 +104,7 @@ def _check_depart_speeds(sc: scenario_mod.Scenario, demand, departures) -> None:
     from before a link where it must give way (SUMO discards it: "will not be able to depart"), and
     no ``[[vehicles]]`` placed beyond its end (SUMO moved it to the end without a word)."""
     from nrtraffic.sumo.adapter import VehicleType
-    from nrtraffic.sumo.network import give_way_room, read_net
+    from nrtraffic.sumo.network import give_way_room, read_net, safe_depart_speed
 
     net = read_net(sc.network_path)
     limit: dict[str, float] = {}
@@ -114,7 +114,6 @@ def _check_depart_speeds(sc: scenario_mod.Scenario, demand, departures) -> None:
         return (f"vehicles.{vid}.depart_speed_mps" if vid in listed else
                 "its departSpeed in demand.sumo_routes" if sc.demand.sumo_routes else "demand.entry_speed_mps")
 
-    stops: dict[tuple, tuple[float, str] | None] = {}
     dt = sc.sumo.step_length_s
     length = sc.vehicle.params().length
     for vid, route, _, speed, pos, kind, *_ in departures:
@@ -131,13 +130,11 @@ def _check_depart_speeds(sc: scenario_mod.Scenario, demand, departures) -> None:
                 f"(SUMO refuses it): lower {where(vid)}")
         human = kind == "human"
         decel = sc.human.decel_mps2 if human else VehicleType.decel_mps2
-        key = (route, pos, speed, human)
-        if key not in stops:
-            stops[key] = give_way_room(net, demand.route_edges(route), pos if pos >= 0 else length)
-        room = stops[key]
-        if room is not None and speed * speed + 2 * speed * decel * dt > 2 * decel * room[0] + 1e-9:
-            # (SUMO's insertion check: the driver must be able to stop, braking at its decel from the
-            # next step on, before a link where it has no priority; else SUMO discards the vehicle)
+        room = give_way_room(net, demand.route_edges(route), pos if pos >= 0 else length)
+        if room is not None and speed > safe_depart_speed(room[0], decel, dt) + 1e-9:
+            # (SUMO's insertion check, a little stricter (safe_depart_speed): the driver must be able to
+            # stop, braking at its decel from the next step on, before a link where it has no priority;
+            # else SUMO discards the vehicle)
             need = speed * speed / (2 * (room[0] - speed * dt)) if room[0] > speed * dt else float("inf")
             fix = (f"raise human.decel_mps2 (a driver's comfortable deceleration) to at least {need:.2f} m/s^2, or "
                    f"lower {where(vid)}" if human else f"lower {where(vid)}, or start its route further upstream")

@@ -354,15 +354,10 @@ class Admission:
         q = st.life.waiting_at_line(st.records[vid].lane)
         if not q or (len(q) == 1 and vid in q):
             return False
-        here = st.cg_on_path(vid) if vid in st.snap.row else None
-        if here is None:
+        here = st.where_on_path(vid)
+        if here == -math.inf:
             return True  # (not on its path's lanes yet: everyone on the lane is ahead of it)
-        for u in q:
-            if u != vid and u in st.snap.row:
-                s = st.cg_on_path(u)
-                if s is not None and s > here:
-                    return True
-        return False
+        return any(u != vid and st.where_on_path(u) > here for u in q)
 
     def wait_at_stop_line(self, vid: str, colour: str) -> None:
         """A controlled vehicle that is not scheduled yet and must not cross unplanned: SUMO drives

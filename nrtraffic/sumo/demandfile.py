@@ -198,21 +198,22 @@ def routed(path: Path, net_path: Path) -> Path:
 
 def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.random.Generator, end_s: float,
                      entry_speed_mps: float, net=None, source: str | None = None,
-                     notes: list[str] | None = None, safe_start: tuple[float, float, float] | None = None,
-                     capped: set | None = None) -> list[tuple]:
+                     notes: list[str] | None = None, safe_start: tuple[float, float, float] | None = None
+                     ) -> list[tuple]:
     """Departures ``(vehicle_id, crossings, depart_s, depart_speed_mps, depart_pos_m, edges,
-    depart_lane, vclass)`` of the file (``vclass``: SUMO's vClass of its ``<vType>``, "passenger"
+    depart_lane, vclass, slowed)`` of the file (``vclass``: SUMO's vClass of its ``<vType>``, "passenger"
     where it has none), up to ``end_s`` [s] for open-ended flows: ``crossings`` the
     movements its route takes, in order (``movements`` maps ``(incoming edge, outgoing edge)`` to a
     movement name; none for a route that crosses no controlled junction), ``edges`` its whole
     route. A file none of whose vehicles crosses a controlled junction is an error; with ``net`` (a
     sumolib network) so is a route over an edge the network does not have, or over two edges it
-    does not connect, and a ``departLane`` or ``departPos`` its first edge does not have. ``departSpeed`` is used where it is a number, else
-    ``entry_speed_mps``, with ``net`` at most the first edge's speed limit, and with ``safe_start``
-    (the front's position at ``base`` [m], the car's deceleration [m/s^2], SUMO's step [s]) at most
-    the speed from which it can stop before the first link of its route where it gives way
-    (:func:`~nrtraffic.sumo.network.safe_depart_speed`): the ids of the vehicles so slowed go to
-    ``capped``; ``departPos`` where it is a number, else -1 (SUMO's ``base``);
+    does not connect, and a ``departLane`` or ``departPos`` its first edge does not have.
+    ``departSpeed`` is used where it is a number, else ``entry_speed_mps``, with ``net`` at most the
+    first edge's speed limit, and with ``safe_start`` (the front's position at ``base`` [m], the
+    car's deceleration [m/s^2], SUMO's step [s]) at most the speed from which it can stop before the
+    first link of its route where it gives way (:func:`~nrtraffic.sumo.network.safe_depart_speed`):
+    ``slowed`` says whether it was so held below ``entry_speed_mps``; ``departPos`` where it is a
+    number, else -1 (SUMO's ``base``);
     ``departLane`` as given (a lane index or SUMO's word), else "best". A trip given by
     ``from``/``to`` that is not routed (:func:`routed`) is the two edges. ``source``: the file's
     name in messages (the user's, where ``path`` is its routed copy). ``notes``: where to say what
@@ -286,7 +287,7 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
             # the entry speed, at most its first edge's speed limit and (with safe_start) the speed it
             # can stop from before a link where it gives way, as SUMO's "max"
             v0 = min(entry_speed_mps, net.getEdge(edges[0]).getSpeed())
-            room = give_way_room(net, edges, pos if pos >= 0 else safe_start[0]) if safe_start else None
+            room = give_way_room(net, tuple(edges), pos if pos >= 0 else safe_start[0]) if safe_start else None
             if room is not None:
                 v0 = min(v0, math.floor(1000.0 * safe_depart_speed(room[0], *safe_start[1:])) / 1000.0)
             return v0
@@ -338,14 +339,13 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
         edges = tuple(edges)
         x0 = position(el, where, edges[0])
         v0, ln = speed(el, where, edges, x0), lane(el, where, edges[0])
+        slowed = v0 < entry_speed_mps and el.get("departSpeed") in (None, *DEPART_SPEEDS)
         kind = vclass.get(el.get("type"), "passenger")
         if tag in ("vehicle", "trip"):
             t = _num(el, "depart", where)
             if t < 0:
                 raise DemandFileError(f"{where}: depart={el.get('depart')} is negative (SUMO's clock starts at 0)")
-            out.append((vid, legs, t, v0, x0, edges, ln, kind))
-            if capped is not None and v0 < entry_speed_mps and el.get("departSpeed") in (None, *DEPART_SPEEDS):
-                capped.add(vid)
+            out.append((vid, legs, t, v0, x0, edges, ln, kind, slowed))
             continue
         rates = [k for k in ("period", "vehsPerHour", "perHour", "probability") if el.get(k) is not None]
         if len(rates) > 1:  # (SUMO refuses it; the run took one of them)
@@ -409,9 +409,7 @@ def read_sumo_demand(path: Path, movements: dict[tuple[str, str], str], rng: np.
             raise DemandFileError(f"{where}: needs period, vehsPerHour, probability or number")
         if el.get("number") is not None and (el.get("period") is not None or el.get("vehsPerHour") is not None):
             times = times[:int(_num(el, "number", where))]
-        out += [(f"{vid}.{k}", legs, float(t), v0, x0, edges, ln, kind) for k, t in enumerate(times)]
-        if capped is not None and v0 < entry_speed_mps and el.get("departSpeed") in (None, *DEPART_SPEEDS):
-            capped.update(f"{vid}.{k}" for k in range(len(times)))
+        out += [(f"{vid}.{k}", legs, float(t), v0, x0, edges, ln, kind, slowed) for k, t in enumerate(times)]
     twice = sorted(i for i, n in Counter(o[0] for o in out).items() if n > 1)
     if twice:
         more = f" and {len(twice) - 1} more" if len(twice) > 1 else ""
