@@ -270,3 +270,63 @@ def test_a_start_from_rest_behind_a_crawling_plan_never_runs_into_it():
     assert spacing(got.t_release) >= 7.0 - 0.05
     naive = max(lead.t_merge + 1.0 - mw[0], lead.t_exit + 12.0 / max(v_exit, 1.0) - ew[0], 0.0)
     assert spacing(naive) < -10.0  # (spacing the merge times alone: it would run into it)
+
+
+# ---------------------------------------------------------------- the zone model with starts from rest
+
+def _zone_coordinator():
+    s = CoordinatorSettings(rear_end_spacing_m=12.0, min_merge_headway_s=1.0, terminal_speed="fixed")
+    assert s.conflict_model == "zone"  # (the paper's, and the default)
+    return Coordinator(s, PlanBounds(v_min_mps=1.0, v_max_mps=13.89, u_min_mps2=-3.0, u_max_mps2=2.5),
+                       {("a", "b"): CONFLICT, ("b", "a"): CONFLICT},
+                       areas={("a", "b"): (10.0, 20.0), ("b", "a"): (12.0, 22.0)})
+
+
+def _stand(c, vid, lane, movement, t0, D=5.0):
+    """A car standing ``D`` m before the zone, its start from rest reserved (2.5 m/s^2 up to 8 m/s);
+    its earliest merging-zone entry and latest exit [s], from the crossing's own windows."""
+    from nrtraffic.planning.crossing import CrossingBounds, human_crossing
+
+    other = "b" if movement == "a" else "a"
+    lo, hi = c.areas[(movement, other)]
+    offsets, mw, ew, v_exit = human_crossing(CrossingBounds(2.5, 2.5, 8.0, 8.0, 0.0), {other: (D + lo, D + hi)}, D,
+                                             D + 30.0)
+    a = c.reserve_crossing(vid, lane, movement, t0, offsets, mw, ew, v_exit, start=(D, 2.5, 8.0))
+    return a, a.t_release + mw[0], a.t_release + ew[1]
+
+
+def test_zone_model_a_start_from_rest_waits_until_the_steered_cross_flow_has_left_the_zone():
+    """Under the zone model no two vehicles of conflicting movements are in the merging zone at once
+    (eq. 6 of the paper). A car planned through the zone on movement a (10 m/s, 100 m out, 30 m of
+    zone: in it from 10 s to 13 s), then a car standing 5 m before the zone on movement b, whose
+    start from rest is reserved at 2 s: it enters the zone no sooner than the first has left it."""
+    c = _zone_coordinator()
+    steered = c.schedule_request(Request("s", "La", 0.0, 10.0, 100.0, "a", 30.0, 10.0))
+    assert steered.t_merge == pytest.approx(10.0) and steered.t_exit == pytest.approx(13.0)
+    start, enter, leave = _stand(c, "r", "Lb", "b", 2.0)
+    assert enter >= steered.t_exit - 1e-9
+    assert start.binding == "conflict" and start.predecessor == "s"
+
+
+def test_zone_model_a_car_planned_after_a_reserved_start_enters_once_it_has_left():
+    """The other way round: the standing car's start is reserved first (at 2 s, no one in its way),
+    then a car on the conflicting movement is planned (10 m/s, 100 m out at -5 s: free, it would merge at
+    5 s, while the first may still be in the zone): its merge time is no sooner than the latest exit
+    the reserved start allows."""
+    c = _zone_coordinator()
+    start, enter, leave = _stand(c, "r", "Lb", "b", 2.0)
+    assert start.t_release == pytest.approx(2.0) and enter < 5.0 < leave
+    steered = c.schedule_request(Request("s", "La", -5.0, 10.0, 100.0, "a", 30.0, 10.0))  # (free: at 5 s)
+    assert steered.t_merge >= leave - 1e-9 and steered.predecessor == "r"
+
+
+def test_zone_model_a_cancelled_start_leaves_the_steered_car_ahead_of_it_in_the_way():
+    """A car planned through the zone on movement a (in it until 13 s), a car standing behind it on
+    its lane whose start is reserved after it, then cancelled (its exit was queued): a car on the
+    conflicting movement planned next still waits for the first one to leave the zone."""
+    c = _zone_coordinator()
+    first = c.schedule_request(Request("s", "La", 0.0, 10.0, 100.0, "a", 30.0, 10.0))
+    _stand(c, "r", "La", "a", 2.0, D=60.0)
+    c.cancel("r")
+    later = c.schedule_request(Request("x", "Lb", 0.0, 13.0, 150.0, "b", 30.0, 13.0))  # (free: at 11.5 s)
+    assert later.t_merge >= first.t_exit - 1e-9 and later.predecessor == "s"

@@ -269,7 +269,7 @@ class Coordinator:
         if wait_cap > 0.0 and t_m - t_early > wait_cap:
             raise ScheduleInfeasible(f"vehicle {vehicle_id}: it would wait {t_m - t_early:.1f} s past its earliest "
                                      f"arrival, more than coordinator.max_wait_s = {wait_cap:g} s")
-        prof = self._profile(vehicle_id, t0, v0, D, t_m, r.v_limit)
+        prof = energy_optimal(self.settings, self.bounds, vehicle_id, t0, v0, D, t_m, r.v_limit)
         intrusion = float("nan")
         if prev is not None:
             prof, intrusion = self._keep_behind(prof, prev, t0, v0, D, t_m, strict=r.handed_over)
@@ -278,14 +278,29 @@ class Coordinator:
                                          f"{self.settings.rear_end_spacing_m:g} m behind {prev.vehicle_id}'s "
                                          f"(it would come {intrusion:.2f} m closer)")
         t_exit = t_m + r.zone_length_m / prof.v_m
-        a = Assignment(vehicle_id, lane, t0, t_m, prof, pred, relation, binding, movement, t_exit, intrusion)
-        self._last_on_lane[lane] = a
-        if self.settings.conflict_model == "conflict_points":
-            self._reserved = [x for x in self._reserved if x.t_exit + self.settings.conflict_margin_s > t0] + [a]
-        prev_m = self._last_on_movement.get(movement)
-        if prev_m is None or t_exit > prev_m.t_exit:
-            self._last_on_movement[movement] = a
+        return self._commit(Assignment(vehicle_id, lane, t0, t_m, prof, pred, relation, binding, movement, t_exit,
+                                       intrusion))
+
+    def _commit(self, a: Assignment) -> Assignment:
+        """Keep ``a``: the last of its lane, a reservation (those left before its request are
+        dropped), and the last of its movement where it leaves the merging zone after the last."""
+        self._last_on_lane[a.lane] = a
+        self._reserved = [x for x in self._reserved if x.t_exit + self.settings.conflict_margin_s > a.t_enter] + [a]
+        prev_m = self._last_on_movement.get(a.movement)
+        if prev_m is None or a.t_exit > prev_m.t_exit:
+            self._last_on_movement[a.movement] = a
         return a
+
+    def _zone_clear(self, movement: str) -> tuple[float, str | None]:
+        """``conflict_model = "zone"``: when the merging zone is clear of every movement that
+        conflicts with ``movement`` (the latest planned exit [s] of a vehicle on one, -inf when
+        there is none) and that vehicle; ``(-inf, None)`` in the other model."""
+        t, last = -math.inf, None
+        if self.settings.conflict_model == "zone":
+            for other, a in self._last_on_movement.items():
+                if self.relations.get((movement, other)) == CONFLICT and a.t_exit > t:
+                    t, last = a.t_exit, a.vehicle_id
+        return t, last
 
     def _earliest(self, v0: float, D: float, v_limit: float, hindered: bool = False) -> float:
         """Earliest time [s] from the control-zone entry to the merging zone (see :meth:`schedule`)."""
@@ -326,11 +341,10 @@ class Coordinator:
             t_free, blocker = self._first_free(t_m, movement, v_zone, extra)
             if blocker is not None:
                 t_m, binding, pred, relation = t_free, "conflict", blocker, "conflict"
-        else:
-            # the latest exit of each conflicting movement binds (FIFO: all were scheduled earlier)
-            for other, last in self._last_on_movement.items():
-                if self.relations.get((movement, other)) == CONFLICT and last.t_exit > t_m:
-                    t_m, binding, pred, relation = last.t_exit, "conflict", last.vehicle_id, "conflict"
+        else:  # the latest exit of each conflicting movement binds (FIFO: all were scheduled earlier)
+            t_clear, last = self._zone_clear(movement)
+            if t_clear > t_m:
+                t_m, binding, pred, relation = t_clear, "conflict", last, "conflict"
         return t_m, binding, pred, relation, prev, t_early
 
     def schedule_batch(self, requests: list[Request]) -> list[tuple[Request, Assignment | ScheduleInfeasible]]:
@@ -461,8 +475,8 @@ class Coordinator:
         are spent): the replacing assignment, or None where it cannot start sooner. ``t_min``
         keeps it behind the vehicle ahead of it on its lane (the caller's rule)."""
         a = next((x for x in self._reserved if x.vehicle_id == vehicle_id and x.occupancy is not None), None)
-        if a is None or math.isnan(a.t_release) or a.t_release <= t_min:
-            return None
+        if a is None or math.isnan(a.t_release) or a.t_release <= t_min or self.settings.conflict_model == "zone":
+            return None  # (the zone model keeps its first-come order: nothing is moved sooner)
         rel = {o: (i - a.t_release, e - a.t_release) for o, (i, e) in a.occupancy.items()}
         t, _ = self._first_free(t_min, a.movement, 0.0, offsets=rel, driven_by_sumo=a.driven_by_sumo,
                                 own=vehicle_id)
@@ -526,6 +540,9 @@ class Coordinator:
                                       platoon_headway_s)
             if t_same > t_start:
                 t_start, binding = t_same, "rear_end"
+        t_clear, last = self._zone_clear(movement)  # (zone model: it enters once the zone is clear)
+        if t_clear - merge_window[0] > t_start:
+            t_start, binding, pred, relation = t_clear - merge_window[0], "conflict", last, "conflict"
         t, blocker = self._first_free(t_start, movement, 0.0, offsets=offsets, driven_by_sumo=driven_by_sumo)
         if now_only and t > t0 + _EPS_S:
             return None
@@ -536,9 +553,7 @@ class Coordinator:
         a = Assignment(vehicle_id, lane, t0, t + merge_window[1], Crossing(max(v_exit_min, 1e-3)), pred, relation,
                        binding, movement, t + exit_window[1], t_release=t, occupancy=occ, motion=motion,
                        driven_by_sumo=driven_by_sumo, follows=None if prev is None else prev.vehicle_id)
-        self._last_on_lane[lane] = a
-        self._reserved = [x for x in self._reserved if x.t_exit + self.settings.conflict_margin_s > t0] + [a]
-        return a
+        return self._commit(a)
 
     def _lane_bound(self, prev: Assignment, t0: float, merge_window: tuple[float, float],
                     exit_window: tuple[float, float], v_exit_min: float, start, driven_by_sumo: bool,
@@ -618,28 +633,30 @@ class Coordinator:
             self.qp_wall_s += time.perf_counter() - tq
         return safe, rear_end_violation(safe, leader_pos, t_m, gap)
 
-    def _profile(self, vehicle_id: str, t0: float, v0: float, D: float, t_m: float, v_limit: float) -> Profile:
-        """The energy-optimal plan to reach the merging zone at ``t_m`` within the bounds: with a
-        cruise at ``v_max`` or, for a long wait, at ``v_min`` where the bound is active; a slow or
-        standing car never slower than it is. ScheduleInfeasible where none fits: the car is held
-        (SUMO drives it on to its stop line, where its start from rest is reserved)."""
-        b = self.bounds
-        T = t_m - t0
-        t_max = max_time(v0, D, b)
-        if T > t_max + 1e-9:
-            raise ScheduleInfeasible(
-                f"vehicle {vehicle_id}: merge time {t_m:.2f} s needs {T:.2f} s for {D:.1f} m, "
-                f"but at v >= {b.v_min_mps} m/s it arrives by {t_max:.2f} s"
-            )
-        try:
-            if self.settings.terminal_speed == "fixed":
-                return fixed_terminal(t0, v0, min(v_limit, b.v_max_mps), D, T, b)
-            prof = free_terminal(t0, v0, D, T, b)
-            if prof.v_m > v_limit + 1e-9:
-                prof = fixed_terminal(t0, v0, v_limit, D, T, b)
-        except InfeasibleProfile as exc:
-            raise ScheduleInfeasible(f"vehicle {vehicle_id}: {exc}") from None
-        return prof
+
+def energy_optimal(settings: CoordinatorSettings, bounds: PlanBounds, vehicle_id: str, t0: float, v0: float, D: float,
+                   t_m: float, v_limit: float) -> Profile:
+    """The energy-optimal plan to reach the merging zone at ``t_m`` within the bounds: with a
+    cruise at ``v_max`` or, for a long wait, at ``v_min`` where the bound is active; a slow or
+    standing car never slower than it is. ScheduleInfeasible where none fits: the car is held
+    (SUMO drives it on to its stop line, where its start from rest is reserved)."""
+    b = bounds
+    T = t_m - t0
+    t_max = max_time(v0, D, b)
+    if T > t_max + 1e-9:
+        raise ScheduleInfeasible(
+            f"vehicle {vehicle_id}: merge time {t_m:.2f} s needs {T:.2f} s for {D:.1f} m, "
+            f"but at v >= {b.v_min_mps} m/s it arrives by {t_max:.2f} s"
+        )
+    try:
+        if settings.terminal_speed == "fixed":
+            return fixed_terminal(t0, v0, min(v_limit, b.v_max_mps), D, T, b)
+        prof = free_terminal(t0, v0, D, T, b)
+        if prof.v_m > v_limit + 1e-9:
+            prof = fixed_terminal(t0, v0, v_limit, D, T, b)
+    except InfeasibleProfile as exc:
+        raise ScheduleInfeasible(f"vehicle {vehicle_id}: {exc}") from None
+    return prof
 
 
 def start_behind(prev: Assignment, t0: float, D: float, a: float, v_cap: float, delta: float) -> float:
