@@ -198,7 +198,8 @@ def test_sumo_inserts_a_car_at_its_safe_speed_before_a_link_where_it_gives_way(r
 
 
 def test_a_city_junction_in_its_calibrated_demand_keeps_every_lane_moving(tmp_path):
-    """sumo_scenarios/doerpfeldstr, a cut of a public city scenario, its first 300 s: on an approach
+    """sumo_scenarios/doerpfeldstr, a cut of a public city scenario, its first 300 s, first come
+    first served (``coordinator.policy = "fifo"``, the default) under the zone model: on an approach
     fed by several roads, a car ahead may have departed after the cars behind it. One such car,
     held at its stop line, had been passed over for ever behind the cars that waited for it, and
     its lane stood still from 205 s on while the run said "ok" (the other arms kept the junction
@@ -206,7 +207,9 @@ def test_a_city_junction_in_its_calibrated_demand_keeps_every_lane_moving(tmp_pa
     a minute before the end left it."""
     from conftest import SCENARIOS
 
-    sc = scenario.load(SCENARIOS / "doerpfeldstr" / "scenario.toml")
+    # (first come first served, where the lane's order matters; the scenario's own batches hold none)
+    sc = scenario.load(SCENARIOS / "doerpfeldstr" / "scenario.toml",
+                       ['coordinator.conflict_model="zone"', 'coordinator.policy="fifo"'])
     out = tmp_path / "run"
     s = run_scenario(sc, out, duration_s=300.0).summary
     assert s["status"] == "ok" and s["collisions"] == 0 and s["collisions_geometric"] == 0
