@@ -261,3 +261,71 @@ def test_under_the_zone_model_held_cars_that_start_from_rest_never_share_the_zon
               for k, (a, ma, ia, ea) in enumerate(crossed) for b, mb, ib, eb in crossed[k + 1:]
               if relations[ma].get(mb) == "conflict" and min(ea, eb) > max(ia, ib)]
     assert not shared, shared
+
+
+# two lanes from the west straight on through C onto the two lanes of the road to X, where lane 0
+# turns right and lane 1 goes straight on
+LANE_NODES = """<nodes>
+  <node id="C" x="0" y="0" type="priority"/>
+  <node id="W" x="-300" y="0"/> <node id="N" x="0" y="300"/> <node id="S" x="0" y="-300"/>
+  <node id="X" x="300" y="0" type="priority"/> <node id="XE" x="600" y="0"/> <node id="XS" x="300" y="-300"/>
+</nodes>"""
+LANE_EDGES = """<edges>
+  <edge id="W_C" from="W" to="C" numLanes="2" speed="13.89"/>
+  <edge id="N_C" from="N" to="C" numLanes="1" speed="13.89"/> <edge id="C_N" from="C" to="N" numLanes="1" speed="13.89"/>
+  <edge id="S_C" from="S" to="C" numLanes="1" speed="13.89"/> <edge id="C_S" from="C" to="S" numLanes="1" speed="13.89"/>
+  <edge id="C_X" from="C" to="X" numLanes="2" speed="13.89"/>
+  <edge id="X_XE" from="X" to="XE" numLanes="1" speed="13.89"/> <edge id="X_XS" from="X" to="XS" numLanes="1" speed="13.89"/>
+</edges>"""
+LANE_CONNECTIONS = """<connections>
+  <connection from="W_C" to="C_X" fromLane="0" toLane="0"/> <connection from="W_C" to="C_X" fromLane="1" toLane="1"/>
+  <connection from="C_X" to="X_XS" fromLane="0" toLane="0"/> <connection from="C_X" to="X_XE" fromLane="1" toLane="0"/>
+</connections>"""
+
+
+@pytest.mark.parametrize("control", ["nrtraffic", "priority"])
+def test_past_its_last_junction_a_car_kept_on_its_lane_changes_lanes_for_its_route_again(tmp_path, control):
+    """Where a turn can be made from more than one lane, a car keeps the lane it is on through
+    the control zone. Past the junction, its lane may not lead where its route goes: here every car
+    from the west departs on the right lane (its route file says so), leaves C on the right lane of
+    C_X, which turns right at X, and half of them go straight on at X. Kept on its lane for ever,
+    such a car stopped at X for good, with no
+    teleport, and the queue behind it reached back through C (found on a city network, where it
+    stopped a lane of the controlled junction). Past its last controlled junction, SUMO's driver
+    makes the lane changes its route needs again: every car finishes its trip, in SUMO's own
+    tripinfo, under nrtraffic and under SUMO's priority rule."""
+    from runners.baseline import run_baseline
+
+    for name, text in (("n.nod.xml", LANE_NODES), ("n.edg.xml", LANE_EDGES), ("n.con.xml", LANE_CONNECTIONS)):
+        (tmp_path / name).write_text(text)
+    subprocess.run([str(sumo_binary("netconvert")), "-n", str(tmp_path / "n.nod.xml"), "-e", str(tmp_path / "n.edg.xml"),
+                    "-x", str(tmp_path / "n.con.xml"), "--no-turnarounds", "--default.junctions.radius", "10",
+                    "--junctions.internal-link-detail", "20", "-o", str(tmp_path / "net.net.xml")],
+                   check=True, capture_output=True)
+    routes = "".join(f'  <vehicle id="w.{k}" depart="{4 * k}" departLane="0" departSpeed="13.89"><route '
+                     f'edges="W_C C_X {"X_XE" if k % 2 else "X_XS"}"/></vehicle>\n' for k in range(10))
+    (tmp_path / "d.rou.xml").write_text(f"<routes>\n{routes}</routes>\n")
+    (tmp_path / "scenario.toml").write_text("""
+[scenario]
+name = "lanes_on"
+network = "net.net.xml"
+duration_s = 150.0
+
+[junction]
+id = "C"
+
+[zones]
+control_zone_m = 250.0
+merging_zone_m = 40.0
+
+[demand]
+sumo_routes = "d.rou.xml"
+""")
+    sc = scenario.load(tmp_path / "scenario.toml")
+    out = tmp_path / control
+    res = run_scenario(sc, out) if control == "nrtraffic" else run_baseline(sc, control, out)
+    assert res.summary["status"] == "ok" and res.summary["collisions"] == 0
+    v = pd.read_csv(out / "vehicles.csv")
+    assert set(v["lane"]) == {"W_C_0"}  # (every car on the right lane)
+    trips = {t.get("id") for t in ET.parse(out / "tripinfo.xml").getroot().iter("tripinfo")}
+    assert trips == {f"w.{k}" for k in range(10)}

@@ -110,10 +110,12 @@ class Admission:
         corridor): its crossing is kept (``crossings``) and a new record starts for the next one,
         which that junction admits when the vehicle enters its control zone (SUMO drives it until
         then; a human driver is told to stop at that junction's stop line). False when the trip
-        has no next junction."""
+        has no next junction: a vehicle kept on its lane then changes lanes for its route again
+        (:meth:`~nrtraffic.sumo.adapter.SumoSession.lanes_for_route`)."""
         st = self.st
         rec = st.records[vid]
         if rec.leg + 1 >= len(rec.legs):
+            st.sumo.lanes_for_route(vid)
             return False
         st.crossings.append(rec)
         route = rec.legs[rec.leg + 1]

@@ -28,6 +28,9 @@ from nrtraffic.sumo.network import edge_of
 _ACTIVE = None
 DEFAULT_SPEED_MODE = 31  # SUMO's default: all safety checks on
 DEFAULT_LANE_CHANGE_MODE = 1621  # SUMO's default: strategic, cooperative, speed gain and keep-right changes
+# strategic changes only (those its route needs), respecting the others' gaps; no cooperative, speed
+# gain or keep-right changes
+ROUTE_LANE_CHANGE_MODE = 0b10_00_00_00_01
 KEEP_ROUTE_EXACT = 3  # moveToXY keepRoute bits: 1 keep the route, 2 the exact (lateral) position
 
 
@@ -248,6 +251,7 @@ class SumoSession:
         self.args += list(extra_args)
         self.step_length = float(step_length_s)
         self.traci = None
+        self.kept: set[str] = set()  # vehicles :meth:`keep_lane` keeps on their lanes
         self._pending_moves = False
         self.unread: set[str] = set()  # vehicles never subscribed: left out of every snapshot
         from libsumo import constants as tc
@@ -494,11 +498,23 @@ class SumoSession:
         """Let SUMO's driver make no lane change (lane-change mode 0): the vehicle stays on the
         lane it was inserted on."""
         self.traci.vehicle.setLaneChangeMode(vid, 0)
+        self.kept.add(vid)
 
     def free_lane(self, vid: str) -> None:
         """Let SUMO's driver change lanes as it would on its own (SUMO's default lane-change mode:
         strategic changes for its route, cooperative, for speed, keeping right)."""
         self.traci.vehicle.setLaneChangeMode(vid, DEFAULT_LANE_CHANGE_MODE)
+        self.kept.discard(vid)
+
+    def lanes_for_route(self, vid: str) -> None:
+        """A vehicle :meth:`keep_lane` kept, past the last junction of its trip: SUMO's driver makes
+        the lane changes its route needs again (:data:`ROUTE_LANE_CHANGE_MODE`). Kept on its lane to
+        the end, it would stop for ever where its lane does not lead on to its route's next road
+        (no teleport: the queue behind it would reach back through the junction). A vehicle that
+        was never kept is left as it is."""
+        if vid in self.kept:
+            self.traci.vehicle.setLaneChangeMode(vid, ROUTE_LANE_CHANGE_MODE)
+            self.kept.discard(vid)
 
     def stop_at(self, vid: str, lane: str, pos_m: float) -> None:
         """Make SUMO's driver stop with its front bumper at ``pos_m`` [m] on ``lane`` (a lane of a
