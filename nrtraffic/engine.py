@@ -367,7 +367,7 @@ class Engine:
                 rec.t_merge_actual = t_cross
             elif k == 1 and math.isnan(rec.t_exit):
                 rec.t_exit = t_cross
-                st.junctions[rec.junction].exits += 1
+                st.junctions[rec.junction].left_zone(rec.lane, st.t)
         lap("kernel")
         # 5. write to SUMO
         self._push_and_release()

@@ -59,7 +59,7 @@ def track_sumo_driven(st, dt: float, next_leg) -> list[str]:
             if math.isnan(rec.t_exit) and s_new >= mv.s_exit > s_prev:
                 rec.t_exit = st.t - dt + dt * (mv.s_exit - s_prev) / (s_new - s_prev)
                 rec.s_last = s_new
-                st.junctions[rec.junction].exits += 1
+                st.junctions[rec.junction].left_zone(rec.lane, st.t)
                 if next_leg(vid):  # (a corridor: on to the next junction)
                     continue
         if not math.isnan(rec.t_enter) and math.isnan(rec.t_exit):

@@ -436,7 +436,7 @@ class Outputs:
     sumo_fcd: bool = False  # SUMO's floating-car data of every vehicle (fcd.xml), e.g. for SUMO-driven leaders
     warmup_s: float = 0.0  # figures count the vehicles that entered the control zone from here on [s]
     measure_end_s: float = 0.0  # ... and up to here (0: the end of the run) [s]
-    stall_s: float = 120.0  # a junction where no vehicle crossed for this long while vehicles in its control zone waited stops the run as gridlocked (0: never; else >= 30 s, as crossing a control zone takes tens of seconds) [s]
+    stall_s: float = 120.0  # a junction where no vehicle crossed for this long while vehicles in its control zone waited, or an entry lane from which none crossed while vehicles waited on it, stops the run as gridlocked (0: never; else >= 30 s, as crossing a control zone takes tens of seconds) [s]
 
     def validate(self) -> None:  # (trajectory_interval_s > 0: RANGES)
         if not (0 <= self.stall_s < math.inf):

@@ -1,7 +1,10 @@
-"""The watchdogs of a run: a junction that makes no progress, and a run without a duration that
-cannot end. Each raises :class:`Gridlock` (the run's status ``"gridlock"``), naming the vehicles."""
+"""The watchdogs of a run: a junction, or one of its entry lanes, that makes no progress, and a run
+without a duration that cannot end. Each raises :class:`Gridlock` (the run's status
+``"gridlock"``), naming the vehicles."""
 
 from __future__ import annotations
+
+import math
 
 from nrtraffic.limits import MAX_DURATION_S
 
@@ -10,13 +13,15 @@ MOVING_MPS = 0.1  # a vehicle slower than this stands still (a run without a dur
 
 class Gridlock(RuntimeError):
     """A junction made no progress: no vehicle left its merging zone for ``outputs.stall_s`` while
-    vehicles waited there; or, in a run without a duration, no vehicle moved."""
+    vehicles waited there, or none of one of its entry lanes while vehicles waited on it; or, in a
+    run without a duration, no vehicle moved."""
 
 
 def watch_junctions(st, admission) -> None:
     """Raise :class:`Gridlock` when a junction has had vehicles waiting and none leaving its
-    merging zone for ``outputs.stall_s``, naming the junction, the waiting vehicles and their
-    movements."""
+    merging zone for ``outputs.stall_s``, or when one of its entry lanes has (its other lanes may
+    go on crossing: a lane that stands still for ever is no less a gridlock), naming the junction,
+    the lane, the waiting vehicles and their movements."""
     stall = st.sc.outputs.stall_s
     if stall <= 0:
         return
@@ -24,14 +29,30 @@ def watch_junctions(st, admission) -> None:
         waiting = admission.waiting(j)
         if j.exits != j.exits_seen or not waiting:
             j.idle_since, j.exits_seen = st.t, j.exits
-            continue
-        if st.t - j.idle_since < stall:
-            continue
-        names = ", ".join(f"{v} ({st.records[v].movement}, {st.records[v].status})" for v in waiting[:12])
-        more = f" and {len(waiting) - 12} more" if len(waiting) > 12 else ""
-        raise Gridlock(f"junction {j.id or '(road)'}: no vehicle crossed for {st.t - j.idle_since:.0f} s "
-                       f"(outputs.stall_s = {stall:g}) while {len(waiting)} in its control zone waited to "
-                       f"cross: {names}{more}")
+        elif st.t - j.idle_since >= stall:
+            raise Gridlock(f"junction {j.id or '(road)'}: no vehicle crossed for {st.t - j.idle_since:.0f} s "
+                           f"(outputs.stall_s = {stall:g}) while {len(waiting)} in its control zone waited to "
+                           f"cross: {_names(st, waiting)}")
+        _watch_lanes(st, j, waiting, stall)
+
+
+def _watch_lanes(st, j, waiting: list[str], stall: float) -> None:
+    """The watchdog's look at each entry lane of junction ``j`` where vehicles wait (``waiting``)."""
+    lanes: dict[str, list[str]] = {}
+    for v in waiting:
+        lanes.setdefault(st.records[v].lane, []).append(v)
+    j.lane_waiting = {lane: j.lane_waiting.get(lane, st.t) for lane in lanes}
+    for lane, vids in lanes.items():
+        idle = st.t - max(j.lane_waiting[lane], j.lane_exit.get(lane, -math.inf))
+        if idle >= stall:
+            raise Gridlock(f"junction {j.id or '(road)'}: no vehicle crossed for {idle:.0f} s from its lane {lane} "
+                           f"(outputs.stall_s = {stall:g}) while {len(vids)} on that lane waited to cross: "
+                           f"{_names(st, vids)}; its other lanes went on crossing")
+
+
+def _names(st, vids: list[str]) -> str:
+    names = ", ".join(f"{v} ({st.records[v].movement}, {st.records[v].status})" for v in vids[:12])
+    return names + (f" and {len(vids) - 12} more" if len(vids) > 12 else "")
 
 
 class OpenEnd:

@@ -48,11 +48,15 @@ def city(tmp_path_factory):
     d = tmp_path_factory.mktemp("city")
     (d / "n.nod.xml").write_text(NODES)
     (d / "n.edg.xml").write_text(EDGES)
-    subprocess.run([str(sumo_binary("netconvert")), "-n", str(d / "n.nod.xml"), "-e", str(d / "n.edg.xml"),
-                    "--crossings.guess", "--walkingareas", "--no-turnarounds", "--default.junctions.radius", "10",
-                    "--junctions.internal-link-detail", "20", "-o", str(d / "net.net.xml")],
-                   check=True, capture_output=True)
+    _netconvert(d, "--crossings.guess", "--walkingareas")
     return d
+
+
+def _netconvert(d, *options: str) -> None:
+    """``d/net.net.xml`` from ``d``'s n.nod.xml and n.edg.xml, turning radius 10 m, no U-turns."""
+    subprocess.run([str(sumo_binary("netconvert")), "-n", str(d / "n.nod.xml"), "-e", str(d / "n.edg.xml"), *options,
+                    "--no-turnarounds", "--default.junctions.radius", "10", "--junctions.internal-link-detail", "20",
+                    "-o", str(d / "net.net.xml")], check=True, capture_output=True)
 
 
 def _car_lanes(net_file) -> set[str]:
@@ -298,30 +302,11 @@ def test_past_its_last_junction_a_car_kept_on_its_lane_changes_lanes_for_its_rou
 
     for name, text in (("n.nod.xml", LANE_NODES), ("n.edg.xml", LANE_EDGES), ("n.con.xml", LANE_CONNECTIONS)):
         (tmp_path / name).write_text(text)
-    subprocess.run([str(sumo_binary("netconvert")), "-n", str(tmp_path / "n.nod.xml"), "-e", str(tmp_path / "n.edg.xml"),
-                    "-x", str(tmp_path / "n.con.xml"), "--no-turnarounds", "--default.junctions.radius", "10",
-                    "--junctions.internal-link-detail", "20", "-o", str(tmp_path / "net.net.xml")],
-                   check=True, capture_output=True)
+    _netconvert(tmp_path, "-x", str(tmp_path / "n.con.xml"))
     routes = "".join(f'  <vehicle id="w.{k}" depart="{4 * k}" departLane="0" departSpeed="13.89"><route '
                      f'edges="W_C C_X {"X_XE" if k % 2 else "X_XS"}"/></vehicle>\n' for k in range(10))
     (tmp_path / "d.rou.xml").write_text(f"<routes>\n{routes}</routes>\n")
-    (tmp_path / "scenario.toml").write_text("""
-[scenario]
-name = "lanes_on"
-network = "net.net.xml"
-duration_s = 150.0
-
-[junction]
-id = "C"
-
-[zones]
-control_zone_m = 250.0
-merging_zone_m = 40.0
-
-[demand]
-sumo_routes = "d.rou.xml"
-""")
-    sc = scenario.load(tmp_path / "scenario.toml")
+    sc = _scenario(tmp_path, '\n[demand]\nsumo_routes = "d.rou.xml"\n')
     out = tmp_path / control
     res = run_scenario(sc, out) if control == "nrtraffic" else run_baseline(sc, control, out)
     assert res.summary["status"] == "ok" and res.summary["collisions"] == 0

@@ -5,6 +5,7 @@ invariant holds at every check, and a junction that makes no progress stops the 
 import json
 from pathlib import Path
 
+import pandas as pd
 import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
@@ -123,3 +124,37 @@ def test_a_junction_with_30_m_control_zones_serves_every_arrival(tmp_path):
     early = v[v["t_arrive_s"] <= 240.0]
     assert len(early) > 50 and early["t_exit_s"].notna().all()
     assert ours["throughput_veh_h"] >= 0.95 * stop["throughput_veh_h"]
+
+
+def test_a_lane_that_stands_still_while_the_others_cross_stops_the_run_as_gridlocked(tmp_path, monkeypatch):
+    """A fault injected into the coordinator: the cars of lane W_in_0 are never planned, and their
+    starts from rest are reserved an hour away. The junction's other lanes go on crossing, so its
+    own count of cars leaving the merging zone never stalls; the lane's does. The watchdog stops the
+    run after outputs.stall_s of it, naming the lane and its waiting cars (exit 1 from the command,
+    status "gridlock"), and what was finished is kept."""
+    from nrtraffic.planning import coordinator as coord
+
+    schedule, reserve = coord.Coordinator.schedule_request, coord.Coordinator.reserve_crossing
+
+    def never(self, r):
+        if r.lane == "W_in_0":
+            raise coord.ScheduleInfeasible(f"vehicle {r.vehicle_id}: (fault injected)")
+        return schedule(self, r)
+
+    def an_hour_away(self, vehicle_id, lane, movement, t0, *args, **kw):
+        return reserve(self, vehicle_id, lane, movement, t0 + (3600.0 if lane == "W_in_0" else 0.0), *args, **kw)
+
+    monkeypatch.setattr(coord.Coordinator, "schedule_request", never)
+    monkeypatch.setattr(coord.Coordinator, "reserve_crossing", an_hour_away)
+    out = tmp_path / "run"
+    rc = main(["run", str(SCENARIOS / "cross4" / "scenario.toml"), "--seed", "1", "--duration", "300",
+               "--set", "outputs.stall_s=60", "--out", str(out), "--no-progress"])
+    assert rc == 1
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "gridlock" and s["sim_time_s"] < 300.0
+    assert "from its lane W_in_0" in s["error"] and "its other lanes went on crossing" in s["error"]
+    waiting = [w.split(" (")[0] for w in s["error"].split("waited to cross: ")[1].split("), ")]
+    assert waiting and all(v.startswith("W_in.") for v in waiting)
+    v = pd.read_csv(out / "vehicles.csv")
+    assert v[v["lane"] != "W_in_0"]["t_exit_s"].notna().sum() >= 5  # (the other lanes crossed)
+    assert v[v["lane"] == "W_in_0"]["t_exit_s"].isna().all()
