@@ -180,9 +180,8 @@ def test_sumo_inserts_a_car_at_its_safe_speed_before_a_link_where_it_gives_way(r
     SUMO counts half: conservative by about 0.2 m/s at a 0.1 s step.)"""
     (tmp_path / "n.nod.xml").write_text(YIELD_NODES)
     (tmp_path / "n.edg.xml").write_text(YIELD_EDGES)
+    _netconvert(tmp_path)
     net_file = tmp_path / "net.net.xml"
-    subprocess.run([str(sumo_binary("netconvert")), "-n", str(tmp_path / "n.nod.xml"), "-e", str(tmp_path / "n.edg.xml"),
-                    "--no-turnarounds", "-o", str(net_file)], check=True, capture_output=True)
     net = read_net(net_file)
     pos = net.getEdge("A_J").getLength() - room
     found = give_way_room(net, ("A_J", "J_M2"), pos)

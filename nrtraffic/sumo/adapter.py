@@ -251,7 +251,6 @@ class SumoSession:
         self.args += list(extra_args)
         self.step_length = float(step_length_s)
         self.traci = None
-        self.kept: set[str] = set()  # vehicles :meth:`keep_lane` keeps on their lanes
         self._pending_moves = False
         self.unread: set[str] = set()  # vehicles never subscribed: left out of every snapshot
         from libsumo import constants as tc
@@ -498,23 +497,21 @@ class SumoSession:
         """Let SUMO's driver make no lane change (lane-change mode 0): the vehicle stays on the
         lane it was inserted on."""
         self.traci.vehicle.setLaneChangeMode(vid, 0)
-        self.kept.add(vid)
 
     def free_lane(self, vid: str) -> None:
         """Let SUMO's driver change lanes as it would on its own (SUMO's default lane-change mode:
         strategic changes for its route, cooperative, for speed, keeping right)."""
         self.traci.vehicle.setLaneChangeMode(vid, DEFAULT_LANE_CHANGE_MODE)
-        self.kept.discard(vid)
 
     def lanes_for_route(self, vid: str) -> None:
         """A vehicle :meth:`keep_lane` kept, past the last junction of its trip: SUMO's driver makes
         the lane changes its route needs again (:data:`ROUTE_LANE_CHANGE_MODE`). Kept on its lane to
         the end, it would stop for ever where its lane does not lead on to its route's next road
         (no teleport: the queue behind it would reach back through the junction). A vehicle that
-        was never kept is left as it is."""
-        if vid in self.kept:
-            self.traci.vehicle.setLaneChangeMode(vid, ROUTE_LANE_CHANGE_MODE)
-            self.kept.discard(vid)
+        was never kept (SUMO's own lane-change mode) is left as it is."""
+        v = self.traci.vehicle
+        if v.getLaneChangeMode(vid) == 0:
+            v.setLaneChangeMode(vid, ROUTE_LANE_CHANGE_MODE)
 
     def stop_at(self, vid: str, lane: str, pos_m: float) -> None:
         """Make SUMO's driver stop with its front bumper at ``pos_m`` [m] on ``lane`` (a lane of a
