@@ -126,6 +126,30 @@ def test_one_session_per_process(tmp_path, paper_curved_path):
             SumoSession(net, routes, 0.1, 1).start()
 
 
+def test_a_new_simulation_reads_none_of_the_last_ones_vehicles(tmp_path):
+    """A sweep's worker runs one simulation after another in one process. libsumo keeps the
+    last simulation's subscription results until the next one's first step: the snapshot of a
+    new simulation must list only vehicles SUMO itself lists in it (none before its first step),
+    or the own collision check finds the last run's queue standing at t = 0."""
+    from conftest import ROOT
+
+    net = ROOT / "sumo_scenarios" / "cross4" / "net.net.xml"
+    routes = tmp_path / "r.rou.xml"
+    write_routes(routes, VehicleType(), {"NS": ("N_in", "S_out"), "WE": ("W_in", "E_out")},
+                 [(f"v{k}", "NS" if k % 2 else "WE", 2.0 * k, 13.89) for k in range(10)])
+    with SumoSession(net, routes, 0.1, 1) as sumo:
+        while sumo.time < 30.0:
+            sumo.step()
+            sumo.departed()  # (subscribes each)
+        assert len(sumo.snapshot().ids) >= 5
+    with SumoSession(net, routes, 0.1, 1) as sumo:
+        for _ in range(40):
+            assert set(sumo.snapshot().ids) <= set(sumo.vehicle_ids())
+            sumo.step()
+            sumo.departed()
+        assert sumo.snapshot().ids
+
+
 def test_split_internal_lanes_are_followed():
     """A left turn's internal lane comes in two pieces (:C_2_0 then :C_12_0 on cross4): both are on
     the path, and consecutive lanes join end to start."""

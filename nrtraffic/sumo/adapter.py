@@ -252,6 +252,7 @@ class SumoSession:
         self.step_length = float(step_length_s)
         self.traci = None
         self._pending_moves = False
+        self._stepped = False  # (see :meth:`snapshot`)
         self.unread: set[str] = set()  # vehicles never subscribed: left out of every snapshot
         from libsumo import constants as tc
 
@@ -273,6 +274,7 @@ class SumoSession:
             except Exception as exc:
                 raise SumoError(f"SUMO failed to start: {exc}") from None
         self.traci = t
+        self._stepped = False
         _ACTIVE = self
         return self
 
@@ -369,6 +371,7 @@ class SumoSession:
         except Exception as exc:
             raise SumoError(f"SUMO step failed at t={self.time:.2f} s: {exc}") from None
         self._pending_moves = False
+        self._stepped = True
         return self.time
 
     @property
@@ -401,8 +404,10 @@ class SumoSession:
     def snapshot(self) -> VehicleTable:
         """Lane, lane position, front-bumper pose, speed and acceleration of every vehicle in the
         network (but those :meth:`forget` left out), from one batched read of SUMO's subscriptions
-        (updated by every step)."""
-        res = self.traci.vehicle.getAllSubscriptionResults()
+        (updated by every step). Before the first step it is empty: libsumo still holds the results
+        of the last simulation this process ran until then (a sweep's worker runs one after
+        another), whose vehicles would stand in this one's network at t = 0."""
+        res = self.traci.vehicle.getAllSubscriptionResults() if self._stepped else {}
         ids = list(res)
         if not ids:
             none = np.zeros(0)
