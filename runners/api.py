@@ -503,7 +503,8 @@ def sweep(scenario: str | Path, seeds: Iterable[int] | str, *, grid: Mapping[str
     Returns
     -------
     Sweep : ``table`` (sweep.csv), ``summary`` (sweep_summary.csv), ``path``; a run that failed
-        is a row with ``status`` "failed" and its ``error`` (:attr:`Sweep.failed`), not an exception.
+        is a row with ``status`` "failed" (or "gridlock", stopped by the watchdog) and its ``error``
+        (:attr:`Sweep.failed`), not an exception.
     """
     from runners import sweep as sweep_mod
 

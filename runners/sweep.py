@@ -12,7 +12,9 @@ Layout of the output folder ``DIR``::
 A run directory is written under a temporary name and renamed when the run has finished, so a run
 directory under its final name is always complete; re-running the same command skips those. A
 run that fails is retried once; if it fails again it is recorded in ``sweep.csv`` with its error,
-what it had finished is kept in ``<control>.failed/``, and the others go on.
+what it had finished is kept in ``<control>.failed/``, and the others go on. A run the watchdog
+stopped as a gridlock is not retried (it would stop the same way): its row's status is
+``gridlock``.
 
 The jobs run on a local cluster of worker processes (one simulation at a time per process:
 libsumo holds one simulation per process) or on an existing Dask scheduler given by address.
@@ -46,6 +48,7 @@ from nrtraffic import _kernel_cache
 from nrtraffic.sumo.netbuild import BASELINES as SUMO_BASELINES
 
 NRTRAFFIC = "nrtraffic"
+GRIDLOCK = "gridlock"  # the status of a run the watchdog stopped (nrtraffic.watchdog.Gridlock)
 BASELINES = SUMO_BASELINES  # SUMO's junction controls a sweep can add as baselines
 # the figures of the markdown table and the figures (the CSVs hold every figure of summary.json)
 HEADLINE = ("throughput_veh_h", "mean_delay_s", "mean_sumo_time_loss_s", "mean_fuel_ml", "collisions",
@@ -297,7 +300,8 @@ def unfinished(job: Job) -> str | None:
 def run_job(spec: dict) -> dict:
     """Run one job into ``spec['run_dir']`` through a temporary directory renamed on success; on
     failure what was finished goes to ``<run_dir>.failed`` and the exception propagates (so Dask
-    retries it). Returns the run's summary."""
+    retries it), but for a run the watchdog stopped as a gridlock, which is a result that a retry
+    repeats. Returns the run's summary (of a gridlock, its status and error only)."""
     from nrtraffic import scenario
     from runners.baseline import run_baseline
     from runners.single import run_scenario
@@ -316,10 +320,12 @@ def run_job(spec: dict) -> dict:
                 res = run_scenario(sc, tmp, seed=spec["seed"], duration_s=spec["duration_s"])
             else:
                 res = run_baseline(sc, spec["control"], tmp, seed=spec["seed"], duration_s=spec["duration_s"])
-        except BaseException:
+        except BaseException as exc:
             if tmp.exists():
                 shutil.rmtree(failed, ignore_errors=True)
                 tmp.rename(failed)
+            if _stopped_as_gridlock(failed):  # a result of the run, not a fault: the same again on a retry
+                return {"status": GRIDLOCK, "error": f"{type(exc).__name__}: {exc}".strip()}
             raise
     if spec.get("fingerprint"):
         (tmp / FINGERPRINT).write_text(json.dumps({
@@ -434,8 +440,8 @@ class Progress:
             self._print(f"sweep: {total - initial} run{'s' if total - initial != 1 else ''} to do"
                         + (f" ({initial} of {total} finished before)" if initial else ""))
 
-    def done(self, job: Job, failed: bool) -> None:
-        """One more run finished (``failed``: recorded as failed)."""
+    def done(self, job: Job, failed: bool, gridlock: bool = False) -> None:
+        """One more run finished (``failed``: recorded as failed; ``gridlock``: stopped as one)."""
         import time
 
         self.n += 1
@@ -450,7 +456,7 @@ class Progress:
             self._print(f"sweep: {self.n}/{self.total} runs done ({self.failed} failed), {_duration(elapsed)} elapsed"
                         + (f", about {_duration(left)} left" if self.n < self.total else "")
                         + f"; last: {run.parent.parent.name}/{run.parent.name}/{run.name} "
-                        + ("failed" if failed else "ok"))
+                        + ("gridlock" if gridlock else "failed" if failed else "ok"))
 
     def close(self) -> None:
         if self.bar is not None:
@@ -577,7 +583,9 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
                     if fut.status != "finished":
                         exc = fut.exception()
                         errors[job.run_dir] = f"{type(exc).__name__}: {exc}".strip()
-                    report.done(job, job.run_dir in errors)
+                    elif (got := fut.result()).get("status") == GRIDLOCK:
+                        errors[job.run_dir] = got["error"]
+                    report.done(job, job.run_dir in errors, gridlock=fut.status == "finished" and job.run_dir in errors)
                 report.close()
             finally:
                 client.close()
@@ -631,7 +639,9 @@ def collect(jobs: list[Job], errors: dict[str, str] | None = None) -> pd.DataFra
         row.update(seed=j.seed, control=j.control)
         s = finished(j)
         if s is None:
-            row.update(status="failed", error=errors.get(j.run_dir) or unfinished(j))
+            stopped = _stopped_as_gridlock(Path(j.run_dir).parent / f"{Path(j.run_dir).name}.failed")
+            row.update(status=GRIDLOCK if stopped else "failed",
+                       error=errors.get(j.run_dir) or (f"Gridlock: {stopped}" if stopped else unfinished(j)))
         else:
             row.update(status="ok", error="")
             row.update({k: v for k, v in s.items()
@@ -644,6 +654,16 @@ def collect(jobs: list[Job], errors: dict[str, str] | None = None) -> pd.DataFra
         row["run_dir"] = str(Path(j.run_dir))
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+def _stopped_as_gridlock(failed: Path) -> str | None:
+    """The watchdog's error where the run whose unfinished directory is ``failed`` stopped as a
+    gridlock and recorded it (its summary.json's status ``gridlock``), else None."""
+    try:
+        s = json.loads((failed / "summary.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return str(s.get("error") or "no error recorded") if s.get("status") == GRIDLOCK else None
 
 
 def _number(v: str):
@@ -1391,7 +1411,7 @@ def main(args) -> int:
     n_failed = int((df["status"] != "ok").sum())
     if n_failed:
         for _, r in df[df["status"] != "ok"].iterrows():
-            print(f"failed: {r['run_dir']}: {r['error']}")
+            print(f"{r['status']}: {r['run_dir']}: {r['error']}")
         print(failed_advice(df))
         return 1
     return 0
@@ -1399,11 +1419,18 @@ def main(args) -> int:
 
 def failed_advice(df: pd.DataFrame) -> str:
     """The closing line of a sweep with failed runs: a retry where a run may succeed again, the
-    scenario to fix where its configuration was refused once SUMO had read the network."""
+    scenario to fix where its configuration was refused once SUMO had read the network, and
+    neither for runs the watchdog stopped as gridlocks (a retry repeats them)."""
     bad = df[df["status"] != "ok"]
-    refused = bad["error"].astype(str).str.startswith(("NetworkError", "ScenarioError")).sum()
+    stuck = int((bad["status"] == GRIDLOCK).sum())
+    refused = int(bad["error"].astype(str).str.startswith(("NetworkError", "ScenarioError")).sum())
+    why = [f"{refused} were refused for their scenario: fix it first"] if refused else []
+    why += [f"{stuck} stopped as gridlocks: the junction could not serve that demand (the errors above name the "
+            "junction or lane), and a retry stops the same way"] if stuck else []
     if refused == len(bad):
         return (f"{len(bad)} of {len(df)} runs failed: their scenario was refused (the errors above name the key to "
                 "fix); a retry fails the same way")
+    if refused + stuck == len(bad):
+        return f"{len(bad)} of {len(df)} runs failed: " + "; ".join(why)
     retry = f"{len(bad)} of {len(df)} runs failed; re-run the same command to retry them"
-    return retry + (f" ({refused} were refused for their scenario: fix it first)" if refused else "")
+    return retry + (f" ({'; '.join(why)})" if why else "")

@@ -162,6 +162,35 @@ def test_a_worker_that_dies_fails_only_the_run_it_was_running(tmp_path, monkeypa
     assert failed["seed"].tolist() == [1] and "KilledWorker" in failed["error"].iloc[0]
 
 
+def test_a_run_stopped_as_a_gridlock_is_a_gridlock_row_and_is_not_retried(tmp_path, capsys):
+    """cross4 with 200 s between merging-zone entries on a lane (tests/test_gridlock.py): the
+    watchdog stops nrtraffic's run. Its row says ``gridlock`` and names the junction, the run is not
+    retried (what it finished is in ``.failed``, from its one attempt), SUMO's run of the same
+    seed finishes, and the last line does not advise a retry."""
+    from conftest import SCENARIOS
+
+    out = tmp_path / "out"
+    argv = ["sweep", str(SCENARIOS / "cross4"), "--seeds", "3", "--baseline", "priority", "--workers", "1",
+            "--duration", "150", "--out", str(out), "--set", "coordinator.min_merge_headway_s=200",
+            "--set", "outputs.stall_s=30", "--set", "outputs.warmup_s=0"]
+    assert main(argv) == 1
+    df = pd.read_csv(out / "sweep.csv").set_index("control")
+    assert df.loc["priority", "status"] == "ok"
+    assert df.loc["nrtraffic", "status"] == "gridlock"
+    assert "Gridlock: junction C: no vehicle crossed for 30 s" in df.loc["nrtraffic", "error"]
+    failed = Path(df.loc["nrtraffic", "run_dir"] + ".failed")
+    assert json.loads((failed / "summary.json").read_text())["status"] == "gridlock"
+    summ = pd.read_csv(out / "sweep_summary.csv").set_index("control")
+    assert summ.loc["nrtraffic", "runs"] == 0 and summ.loc["nrtraffic", "failed"] == 1
+    said = capsys.readouterr()
+    assert "last: base/seed3/nrtraffic gridlock" in said.err
+    assert "1 of 2 runs failed: 1 stopped as gridlocks" in said.out and "retry them" not in said.out
+    # a second pass (the same command) runs it again, and it stops the same way
+    assert main(argv) == 1
+    again = pd.read_csv(out / "sweep.csv").set_index("control")
+    assert again.loc["nrtraffic", "error"] == df.loc["nrtraffic", "error"]
+
+
 def test_a_sweep_into_a_file_says_how_far_it_is_and_the_first_run_says_it_compiles(tmp_path):
     """stderr not a terminal (captured): one line per finished run, counting up to the runs that
     sweep.csv then lists, each naming its run directory. With an empty kernel cache (its own
