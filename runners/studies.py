@@ -217,6 +217,22 @@ def _table_name(study: Study) -> str:
     return next((dst for src, dst in study.copy.items() if src == "sweep.csv"), "sweep.csv")
 
 
+def _gridlocks_only(out: Path, since: float) -> int:
+    """How many runs of the sweep table ``out/sweep.csv`` written after ``since`` (a wall-clock
+    time) stopped as gridlocks, where every other run of it finished; 0 otherwise."""
+    import pandas as pd
+
+    table = out / "sweep.csv"
+    try:
+        if table.stat().st_mtime < since:
+            return 0
+        status = pd.read_csv(table)["status"]
+    except (OSError, ValueError, KeyError):
+        return 0
+    bad = status[status != "ok"]
+    return len(bad) if len(bad) and (bad == "gridlock").all() else 0
+
+
 def command(study: Study, out: Path, where: list[str]) -> list[str]:
     """The full ``nrtraffic`` arguments of a study: its own, ``--out``, and (sweeps and the
     robustness study) where to run."""
@@ -270,9 +286,14 @@ def main(argv: list[str] | None = None) -> int:
         if args.dry_run:
             continue
         t0 = time.perf_counter()
+        t_wall = time.time()
         code = subprocess.run(cmd, cwd=ROOT).returncode
         took = time.perf_counter() - t0
-        if code != 0:
+        stopped = _gridlocks_only(out, t_wall) if code == 1 and s.kind == "sweep" else 0
+        if stopped:  # (the runs the watchdog stopped are a result of the study: its table says so)
+            print(f"[{k}/{len(chosen)}] {s.name}: {stopped} runs stopped as gridlocks, every other run finished",
+                  flush=True)
+        elif code != 0:
             failed.append(s.name)
             print(f"[{k}/{len(chosen)}] {s.name}: failed (exit {code}) after {took:.0f} s; docs/{s.docs} left as it "
                   "was", flush=True)

@@ -132,6 +132,38 @@ def test_a_study_that_fails_leaves_its_files_and_the_command_fails(tmp_path, mon
     assert "broken: failed (exit 2)" in capsys.readouterr().out
 
 
+def test_a_study_whose_only_failures_are_gridlocks_is_copied(tmp_path, monkeypatch, capsys):
+    """Runs the watchdog stopped are a result of a study (its table says gridlock): the study is
+    done and its files are copied. cross4 with 200 s between merging-zone entries on a lane
+    gridlocks (tests/test_gridlock.py); SUMO's priority rule on the same seed finishes."""
+    docs = tmp_path / "docs"
+    (docs / "stuck").mkdir(parents=True)
+    (docs / "stuck" / "sweep.csv").write_text("old")
+    monkeypatch.setattr(studies, "DOCS", docs)
+    monkeypatch.setattr(studies, "STUDIES", (Study("stuck", (
+        "sweep", "sumo_scenarios/cross4", "--seeds", "3", "--baseline", "priority", "--duration", "150",
+        "--set", "coordinator.min_merge_headway_s=200", "--set", "outputs.stall_s=30",
+        "--set", "outputs.warmup_s=0"), "stuck"),))
+    assert studies.main(["--runs", str(tmp_path / "runs"), "--", "--workers", "1"]) == 0
+    df = pd.read_csv(docs / "stuck" / "sweep.csv").set_index("control")
+    assert df.loc["nrtraffic", "status"] == "gridlock" and df.loc["priority", "status"] == "ok"
+    assert "stuck: 1 runs stopped as gridlocks" in capsys.readouterr().out
+
+
+def test_only_a_fresh_table_of_gridlocks_and_finished_runs_counts(tmp_path):
+    import time
+
+    from runners.studies import _gridlocks_only
+
+    t0 = time.time() - 60
+    for status, n in ((["ok", "gridlock", "gridlock"], 2), (["ok", "gridlock", "failed"], 0), (["ok", "ok"], 0)):
+        pd.DataFrame({"status": status}).to_csv(tmp_path / "sweep.csv", index=False)
+        assert _gridlocks_only(tmp_path, t0) == n
+    pd.DataFrame({"status": ["ok", "gridlock"]}).to_csv(tmp_path / "sweep.csv", index=False)
+    assert _gridlocks_only(tmp_path, time.time() + 60) == 0  # (a table of an earlier pass)
+    assert _gridlocks_only(tmp_path / "none", t0) == 0
+
+
 def test_an_unknown_study_is_refused():
     assert studies.main(["--only", "no_such_study", "--dry-run"]) == 2
 
