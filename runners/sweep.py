@@ -321,10 +321,12 @@ def run_job(spec: dict) -> dict:
             else:
                 res = run_baseline(sc, spec["control"], tmp, seed=spec["seed"], duration_s=spec["duration_s"])
         except BaseException as exc:
-            if tmp.exists():
+            wrote = tmp.exists()
+            if wrote:
                 shutil.rmtree(failed, ignore_errors=True)
                 tmp.rename(failed)
-            if _stopped_as_gridlock(failed):  # a result of the run, not a fault: the same again on a retry
+            # a gridlock is a result of the run, not a fault: a retry would stop the same way
+            if wrote and isinstance(exc, Exception) and _stopped_as_gridlock(failed):
                 return {"status": GRIDLOCK, "error": f"{type(exc).__name__}: {exc}".strip()}
             raise
     if spec.get("fingerprint"):
@@ -533,6 +535,7 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
     out.mkdir(parents=True, exist_ok=True)
     todo = [j for j in jobs if finished(j) is None]
     errors: dict[str, str] = {}
+    gridlocks: set[str] = set()  # (run directories of the runs the watchdog stopped)
     if todo and progress and any(j.control == NRTRAFFIC for j in todo):
         _kernel_cache.announce()  # (the workers compile them; they say nothing themselves)
     if todo:
@@ -585,13 +588,14 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
                         errors[job.run_dir] = f"{type(exc).__name__}: {exc}".strip()
                     elif (got := fut.result()).get("status") == GRIDLOCK:
                         errors[job.run_dir] = got["error"]
-                    report.done(job, job.run_dir in errors, gridlock=fut.status == "finished" and job.run_dir in errors)
+                        gridlocks.add(job.run_dir)
+                    report.done(job, job.run_dir in errors, gridlock=job.run_dir in gridlocks)
                 report.close()
             finally:
                 client.close()
                 if cluster is not None:
                     cluster.close()
-    df = collect(jobs, errors)
+    df = collect(jobs, errors, gridlocks)
     # (listed before they are written: a sweep killed while it writes them can be resumed)
     record_tables(out, written=False, planned=(*TABLE_NAMES, *getattr(figures, "names", ())))
     write_tables(df, out, figures)
@@ -629,9 +633,10 @@ def _removed(scratch: Path, folder: Path | None):
                 folder.rmdir()
 
 
-def collect(jobs: list[Job], errors: dict[str, str] | None = None) -> pd.DataFrame:
+def collect(jobs: list[Job], errors: dict[str, str] | None = None, gridlocks=frozenset()) -> pd.DataFrame:
     """One row per job from its run directory: grid values, seed, control, status, error and the
-    scalar figures of summary.json."""
+    scalar figures of summary.json. ``errors``: why this pass's unfinished runs failed, by run
+    directory; ``gridlocks``: the run directories of those the watchdog stopped."""
     errors = errors or {}
     rows = []
     for j in jobs:
@@ -639,9 +644,8 @@ def collect(jobs: list[Job], errors: dict[str, str] | None = None) -> pd.DataFra
         row.update(seed=j.seed, control=j.control)
         s = finished(j)
         if s is None:
-            stopped = _stopped_as_gridlock(Path(j.run_dir).parent / f"{Path(j.run_dir).name}.failed")
-            row.update(status=GRIDLOCK if stopped else "failed",
-                       error=errors.get(j.run_dir) or (f"Gridlock: {stopped}" if stopped else unfinished(j)))
+            row.update(status=GRIDLOCK if j.run_dir in gridlocks else "failed",
+                       error=errors.get(j.run_dir) or unfinished(j))
         else:
             row.update(status="ok", error="")
             row.update({k: v for k, v in s.items()

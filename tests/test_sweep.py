@@ -191,6 +191,21 @@ def test_a_run_stopped_as_a_gridlock_is_a_gridlock_row_and_is_not_retried(tmp_pa
     assert again.loc["nrtraffic", "error"] == df.loc["nrtraffic", "error"]
 
 
+def test_only_a_gridlock_of_the_run_itself_makes_it_a_gridlock(tmp_path):
+    """A run that fails before it writes anything is a failure (retried), even where an earlier
+    attempt of the job had stopped as a gridlock and left its summary in ``.failed``."""
+    from runners.sweep import Job, run_job
+
+    d = tmp_path / "runs" / "base" / "seed1" / "nrtraffic"
+    old = d.parent / "nrtraffic.failed"
+    old.mkdir(parents=True)
+    (old / "summary.json").write_text(json.dumps({"status": "gridlock", "error": "junction C: ..."}))
+    job = Job(scenario=str(tmp_path / "no_such.toml"), overrides=(), point=(), seed=1, control="nrtraffic",
+              duration_s=10.0, run_dir=str(d))
+    with pytest.raises(Exception, match="no_such"):
+        run_job(job.spec())
+
+
 def test_a_sweep_into_a_file_says_how_far_it_is_and_the_first_run_says_it_compiles(tmp_path):
     """stderr not a terminal (captured): one line per finished run, counting up to the runs that
     sweep.csv then lists, each naming its run directory. With an empty kernel cache (its own
