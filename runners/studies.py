@@ -1,8 +1,8 @@
 """Every study committed under ``docs/``, with the command that makes it, run again in one go.
 
 ``python -m runners.studies`` (``make studies``) runs each study's command into ``runs/studies/``
-(a sweep resumes where it stopped, as ``nrtraffic sweep`` does) and, when it succeeds, copies its
-tables and figures over the committed ones: exactly the files its ``docs/`` folder holds, nothing
+(a sweep resumes where it stopped, as ``nrtraffic sweep`` does) and, when it succeeds (a sweep whose
+only unfinished runs stopped as gridlocks has), copies its tables and figures over the committed ones: exactly the files its ``docs/`` folder holds, nothing
 else. A study that fails leaves its committed files as they are, the others go on, and the command
 exits with status 1. Options after ``--`` go to every sweep (``--workers N``, ``--scheduler
 ADDRESS`` or ``--cluster slurm ...``; the default is ``--workers 2``).
@@ -217,14 +217,18 @@ def _table_name(study: Study) -> str:
     return next((dst for src, dst in study.copy.items() if src == "sweep.csv"), "sweep.csv")
 
 
-def _gridlocks_only(out: Path, since: float) -> int:
-    """How many runs of the sweep table ``out/sweep.csv`` written after ``since`` (a wall-clock
-    time) stopped as gridlocks, where every other run of it finished; 0 otherwise."""
+def _gridlocks_only(out: Path, since: float, study: Study | None = None) -> int:
+    """How many runs of the sweep table ``out/sweep.csv`` stopped as gridlocks, where every other
+    run of it finished and the sweep wrote it, and every file of ``study``'s to be copied, after
+    ``since`` (a wall-clock time; a sweep stopped while it wrote its figures has not); 0
+    otherwise."""
     import pandas as pd
 
     table = out / "sweep.csv"
+    back = {dst: src for src, dst in study.copy.items()} if study is not None else {}
+    files = [out / back.get(str(rel), str(rel)) for rel in committed(study)] if study is not None else []
     try:
-        if table.stat().st_mtime < since:
+        if any(f.stat().st_mtime < since for f in (table, *files)):
             return 0
         status = pd.read_csv(table)["status"]
     except (OSError, ValueError, KeyError):
@@ -289,7 +293,7 @@ def main(argv: list[str] | None = None) -> int:
         t_wall = time.time()
         code = subprocess.run(cmd, cwd=ROOT).returncode
         took = time.perf_counter() - t0
-        stopped = _gridlocks_only(out, t_wall) if code == 1 and s.kind == "sweep" else 0
+        stopped = _gridlocks_only(out, t_wall, s) if code == 1 and s.kind == "sweep" else 0
         if stopped:  # (the runs the watchdog stopped are a result of the study: its table says so)
             print(f"[{k}/{len(chosen)}] {s.name}: {stopped} runs stopped as gridlocks, every other run finished",
                   flush=True)

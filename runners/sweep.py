@@ -429,7 +429,7 @@ class Progress:
         import time
 
         self.stream = stream or sys.stderr
-        self.total, self.n, self.failed, self.initial = total, initial, 0, initial
+        self.total, self.n, self.failed, self.gridlocks, self.initial = total, initial, 0, 0, initial
         self.t0 = time.monotonic()
         self.lines = enabled and not self.stream.isatty()
         self.every = max(1, total // 50)
@@ -448,14 +448,17 @@ class Progress:
 
         self.n += 1
         self.failed += bool(failed)
+        self.gridlocks += bool(gridlock)
         if self.bar is not None:
             self.bar.update(1)
-            self.bar.set_postfix(failed=self.failed, remaining=self.total - self.n, refresh=False)
+            self.bar.set_postfix(failed=self.failed, **({"gridlocks": self.gridlocks} if self.gridlocks else {}),
+                                 remaining=self.total - self.n, refresh=False)
         elif self.lines and (self.n % self.every == 0 or self.n == self.total):
             elapsed = time.monotonic() - self.t0
             left = elapsed / (self.n - self.initial) * (self.total - self.n)
             run = Path(job.run_dir)
-            self._print(f"sweep: {self.n}/{self.total} runs done ({self.failed} failed), {_duration(elapsed)} elapsed"
+            failed_now = f"{self.failed} failed" + (f", {self.gridlocks} of them gridlocks" if self.gridlocks else "")
+            self._print(f"sweep: {self.n}/{self.total} runs done ({failed_now}), {_duration(elapsed)} elapsed"
                         + (f", about {_duration(left)} left" if self.n < self.total else "")
                         + f"; last: {run.parent.parent.name}/{run.parent.name}/{run.name} "
                         + ("gridlock" if gridlock else "failed" if failed else "ok"))
@@ -586,9 +589,15 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
                     if fut.status != "finished":
                         exc = fut.exception()
                         errors[job.run_dir] = f"{type(exc).__name__}: {exc}".strip()
-                    elif (got := fut.result()).get("status") == GRIDLOCK:
-                        errors[job.run_dir] = got["error"]
-                        gridlocks.add(job.run_dir)
+                    else:
+                        try:
+                            got = fut.result()
+                        except Exception as exc:  # noqa: BLE001 - (its result lost with its worker): a row
+                            got = {"status": "failed", "error": f"{type(exc).__name__}: {exc}".strip()}
+                            errors[job.run_dir] = got["error"]
+                        if got.get("status") == GRIDLOCK:
+                            errors[job.run_dir] = got["error"]
+                            gridlocks.add(job.run_dir)
                     report.done(job, job.run_dir in errors, gridlock=job.run_dir in gridlocks)
                 report.close()
             finally:

@@ -191,6 +191,23 @@ def test_a_run_stopped_as_a_gridlock_is_a_gridlock_row_and_is_not_retried(tmp_pa
     assert again.loc["nrtraffic", "error"] == df.loc["nrtraffic", "error"]
 
 
+def test_a_job_that_stops_as_a_gridlock_returns_it_instead_of_raising(tmp_path):
+    """Dask retries a job whose function raises; a gridlock is returned (the same run as the
+    sweep above, in this process), so it is run once."""
+    from conftest import SCENARIOS
+
+    from runners.sweep import Job, run_job
+
+    d = tmp_path / "runs" / "base" / "seed3" / "nrtraffic"
+    job = Job(scenario=str(SCENARIOS / "cross4" / "scenario.toml"), point=(), seed=3, control="nrtraffic",
+              overrides=("coordinator.min_merge_headway_s=200", "outputs.stall_s=30", "outputs.warmup_s=0"),
+              duration_s=150.0, run_dir=str(d))
+    got = run_job(job.spec())
+    assert got["status"] == "gridlock" and "Gridlock: junction C" in got["error"]
+    assert not d.exists() and json.loads((d.parent / "nrtraffic.failed" / "summary.json").read_text())["status"] \
+        == "gridlock"
+
+
 def test_only_a_gridlock_of_the_run_itself_makes_it_a_gridlock(tmp_path):
     """A run that fails before it writes anything is a failure (retried), even where an earlier
     attempt of the job had stopped as a gridlock and left its summary in ``.failed``."""
