@@ -1000,8 +1000,8 @@ def test_a_sweep_stopped_while_it_replaces_its_runs_leaves_no_table_of_the_old_o
     assert written <= {p.name for p in out.iterdir()}
     done = sweep.Progress.done
 
-    def stop_after_one(self, job, failed):
-        done(self, job, failed)
+    def stop_after_one(self, job, failed, **kw):
+        done(self, job, failed, **kw)
         raise KeyboardInterrupt
 
     monkeypatch.setattr(sweep.Progress, "done", stop_after_one)
