@@ -27,8 +27,10 @@ def watch_junctions(st, admission) -> None:
         return
     for j in st.junctions.values():
         waiting = admission.waiting(j)
-        if j.exits != j.exits_seen or not waiting:
-            j.idle_since, j.exits_seen = st.t, j.exits
+        crossed = max(j.lane_exit.values(), default=-math.inf) > j.looked_at  # (since the last look)
+        j.looked_at = st.t
+        if crossed or not waiting:
+            j.idle_since = st.t
         elif st.t - j.idle_since >= stall:
             raise Gridlock(f"junction {j.id or '(road)'}: no vehicle crossed for {st.t - j.idle_since:.0f} s "
                            f"(outputs.stall_s = {stall:g}) while {len(waiting)} in its control zone waited to "

@@ -139,14 +139,18 @@ def copy_outputs(study: Study, out: Path, docs: Path | None = None) -> list[Path
     """Copy what ``out`` (the study's output folder) holds of its committed files over them;
     returns the files copied. A committed file the command did not write is left as it is."""
     docs = docs or DOCS
-    back = {dst: src for src, dst in study.copy.items()}
     copied = []
-    for rel in committed(study, docs):
-        src = out / back.get(str(rel), str(rel))
+    for rel, src in _written(study, out, docs):
         if src.is_file():
             shutil.copyfile(src, docs / study.docs / rel)
             copied.append(rel)
     return copied
+
+
+def _written(study: Study, out: Path, docs: Path | None = None) -> list[tuple[Path, Path]]:
+    """Each committed file of the study, with the file of ``out`` its command writes for it."""
+    back = {dst: src for src, dst in study.copy.items()}
+    return [(rel, out / back.get(str(rel), str(rel))) for rel in committed(study, docs)]
 
 
 # figures of a run that are not results: how long it took, and where it was written
@@ -225,8 +229,7 @@ def _gridlocks_only(out: Path, since: float, study: Study | None = None) -> int:
     import pandas as pd
 
     table = out / "sweep.csv"
-    back = {dst: src for src, dst in study.copy.items()} if study is not None else {}
-    files = [out / back.get(str(rel), str(rel)) for rel in committed(study)] if study is not None else []
+    files = [src for _, src in _written(study, out)] if study is not None else []
     try:
         if any(f.stat().st_mtime < since for f in (table, *files)):
             return 0

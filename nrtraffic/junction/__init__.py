@@ -68,8 +68,8 @@ class Junction:
     zone on a plain road) and ``control_zone_m`` the length of its control zone before it [m].
     ``movements`` are the names of its movements (keys of the engine's paths); ``relations`` and
     ``conflict_areas`` relate them to each other only; ``coord`` schedules the vehicles entering its
-    control zone. With ``policy = "batch"``, its batch closes at ``batch_closes`` [s]. ``exits``,
-    ``idle_since`` and the ``lane_`` tables are the watchdog's (:func:`nrtraffic.watchdog.watch_junctions`).
+    control zone. With ``policy = "batch"``, its batch closes at ``batch_closes`` [s]. ``idle_since``,
+    ``looked_at`` and the ``lane_`` tables are the watchdog's (:func:`nrtraffic.watchdog.watch_junctions`).
     """
 
     id: str
@@ -81,15 +81,13 @@ class Junction:
     conflict_areas: dict = field(default_factory=dict)
     coord: Coordinator | None = None
     batch_closes: float = math.inf
-    exits: int = 0  # vehicles that left its merging zone so far
-    exits_seen: int = 0  # ... when the watchdog last looked
     idle_since: float = 0.0  # since when no vehicle left its merging zone while vehicles waited [s]
+    looked_at: float = -math.inf  # when the watchdog last looked [s]
     lane_exit: dict = field(default_factory=dict)  # entry lane -> when a vehicle of it last left the zone [s]
     lane_waiting: dict = field(default_factory=dict)  # entry lane -> since when vehicles have waited on it [s]
 
     def left_zone(self, lane: str, t: float) -> None:
         """A vehicle that entered on ``lane`` left the merging zone at ``t`` [s] (for the watchdog)."""
-        self.exits += 1
         self.lane_exit[lane] = t
 
     def in_merging_zone(self, xy: np.ndarray) -> np.ndarray:
