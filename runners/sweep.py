@@ -864,7 +864,11 @@ def table(summ: pd.DataFrame, df: pd.DataFrame) -> tuple[str, pd.DataFrame]:
              + ("; served: of the vehicles demanded of the junctions in the window, the share they served "
                 "(served_share)" if served else "")
              + ("; not in: demand due by the end that SUMO could not yet insert, per run" if waiting else "")
-             + "." + window)
+             + "." + window
+             + (" runs (failed): the runs that finished, and those that did not; of these, the gridlocks are the "
+                "runs the watchdog stopped (a lane or junction that stood still while vehicles waited: status "
+                "`gridlock` in sweep.csv)." if (df["status"] == GRIDLOCK).any() else ""))
+    stuck = df[df["status"] == GRIDLOCK].groupby(keys + ["control"], dropna=False).size() if len(df) else None
     columns = (keys + ["control", "runs (failed)", "throughput [veh/h]"] + (["served"] if served else [])
                + (["not in"] if waiting else [])
                + ["delay [s]", "LOS", "SUMO timeLoss [s]", "fuel [mL/veh]", "collisions: SUMO / own check"])
@@ -882,8 +886,10 @@ def table(summ: pd.DataFrame, df: pd.DataFrame) -> tuple[str, pd.DataFrame]:
         if waiting:
             extra.append(mean_ci(r, "vehicles_waiting_to_enter", 0))
         delay = r.get("mean_delay_s_mean", math.nan)
+        point = tuple(r[k] for k in keys + ["control"])
+        g = int(stuck.get(point if len(point) > 1 else point[0], 0)) if stuck is not None and len(stuck) else 0
         cells = [f"{r[k]}" for k in keys] + [
-            r["control"], f"{r['runs']} ({r['failed']})", mean_ci(r, "throughput_veh_h", 0), *extra, mean_ci(r, "mean_delay_s"),
+            r["control"], f"{r['runs']} ({r['failed']}" + (f"; {g} gridlock{'s' * (g > 1)}" if g else "") + ")", mean_ci(r, "throughput_veh_h", 0), *extra, mean_ci(r, "mean_delay_s"),
             level_of_service(delay, _signalised(r)),
             mean_ci(r, "mean_sumo_time_loss_s"), mean_ci(r, "mean_fuel_ml"),
             f"{total(r, 'collisions')} / {total(r, 'collisions_geometric')}"]

@@ -182,6 +182,8 @@ def test_a_run_stopped_as_a_gridlock_is_a_gridlock_row_and_is_not_retried(tmp_pa
     assert json.loads((failed / "summary.json").read_text())["status"] == "gridlock"
     summ = pd.read_csv(out / "sweep_summary.csv").set_index("control")
     assert summ.loc["nrtraffic", "runs"] == 0 and summ.loc["nrtraffic", "failed"] == 1
+    md = (out / "sweep.md").read_text()
+    assert "| nrtraffic | 0 (1; 1 gridlock) |" in md and "| priority | 1 (0) |" in md and "the gridlocks are" in md
     said = capsys.readouterr()
     assert "last: base/seed3/nrtraffic gridlock" in said.err
     assert "1 of 2 runs failed: 1 stopped as gridlocks" in said.out and "retry them" not in said.out
