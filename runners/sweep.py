@@ -13,8 +13,8 @@ A run directory is written under a temporary name and renamed when the run has f
 directory under its final name is always complete; re-running the same command skips those. A
 run that fails is retried once; if it fails again it is recorded in ``sweep.csv`` with its error,
 what it had finished is kept in ``<control>.failed/``, and the others go on. A run the watchdog
-stopped as a gridlock is not retried (it would stop the same way): its row's status is
-``gridlock``.
+stopped as a gridlock is not retried (it would stop the same way), nor run again by the same
+command (:func:`stopped_before`): its row's status is ``gridlock``.
 
 The jobs run on a local cluster of worker processes (one simulation at a time per process:
 libsumo holds one simulation per process) or on an existing Dask scheduler given by address.
@@ -297,6 +297,23 @@ def unfinished(job: Job) -> str | None:
     return None
 
 
+def stopped_before(job: Job) -> str | None:
+    """The error of an earlier run of this very job (same configuration, control, seed and
+    duration: its fingerprint) that the watchdog stopped as a gridlock, where its ``.failed``
+    directory holds it; else None. The same command run again takes it as it stands: a retry
+    stops the same way."""
+    failed = Path(job.run_dir).parent / f"{Path(job.run_dir).name}.failed"
+    if not job.fingerprint or not (failed / FINGERPRINT).is_file() or _stopped_as_gridlock(failed) is None:
+        return None
+    try:
+        rec = json.loads((failed / FINGERPRINT).read_text())
+    except (OSError, ValueError):
+        return None
+    if rec.get("fingerprint") != job.fingerprint or rec.get("seed") != job.seed or not rec.get("gridlock"):
+        return None
+    return str(rec["gridlock"])
+
+
 def run_job(spec: dict) -> dict:
     """Run one job into ``spec['run_dir']`` through a temporary directory renamed on success; on
     failure what was finished goes to ``<run_dir>.failed`` and the exception propagates (so Dask
@@ -327,7 +344,11 @@ def run_job(spec: dict) -> dict:
                 tmp.rename(failed)
             # a gridlock is a result of the run, not a fault: a retry would stop the same way
             if wrote and isinstance(exc, Exception) and _stopped_as_gridlock(failed):
-                return {"status": GRIDLOCK, "error": f"{type(exc).__name__}: {exc}".strip()}
+                error = f"{type(exc).__name__}: {exc}".strip()
+                if spec.get("fingerprint"):  # (the same command run again takes it as it stands: stopped_before)
+                    (failed / FINGERPRINT).write_text(json.dumps({
+                        "fingerprint": spec["fingerprint"], "seed": spec["seed"], "gridlock": error}, indent=1) + "\n")
+                return {"status": GRIDLOCK, "error": error}
             raise
     if spec.get("fingerprint"):
         (tmp / FINGERPRINT).write_text(json.dumps({
@@ -536,9 +557,18 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    todo = [j for j in jobs if finished(j) is None]
     errors: dict[str, str] = {}
     gridlocks: set[str] = set()  # (run directories of the runs the watchdog stopped)
+    todo = []
+    for j in jobs:
+        if finished(j) is not None:
+            continue
+        before = stopped_before(j)
+        if before is None:
+            todo.append(j)
+        else:  # (an earlier pass's gridlock of this very job: a retry would stop the same way)
+            errors[j.run_dir] = before
+            gridlocks.add(j.run_dir)
     if todo and progress and any(j.control == NRTRAFFIC for j in todo):
         _kernel_cache.announce()  # (the workers compile them; they say nothing themselves)
     if todo:

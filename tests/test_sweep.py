@@ -187,10 +187,21 @@ def test_a_run_stopped_as_a_gridlock_is_a_gridlock_row_and_is_not_retried(tmp_pa
     said = capsys.readouterr()
     assert "last: base/seed3/nrtraffic gridlock" in said.err
     assert "1 of 2 runs failed: 1 stopped as gridlocks" in said.out and "retry them" not in said.out
-    # a second pass (the same command) runs it again, and it stops the same way
+    # a second pass (the same command) takes it as it stands: a retry would stop the same way
+    stamp = (failed / "summary.json").stat().st_mtime_ns
     assert main(argv) == 1
     again = pd.read_csv(out / "sweep.csv").set_index("control")
-    assert again.loc["nrtraffic", "error"] == df.loc["nrtraffic", "error"]
+    assert again.loc["nrtraffic", "status"] == "gridlock" and again.loc["nrtraffic", "error"] == df.loc["nrtraffic", "error"]
+    assert (failed / "summary.json").stat().st_mtime_ns == stamp
+    said = capsys.readouterr()
+    assert "runs to do" not in said.err  # (nothing was run)
+    assert "1 of 2 runs failed: 1 stopped as gridlocks" in said.out
+    # another configuration of the same run directory is run
+    other = argv[:-4] + ["--set", "outputs.stall_s=40"] + argv[-2:] + ["--force"]
+    assert main(other) == 1
+    third = pd.read_csv(out / "sweep.csv").set_index("control")
+    assert "no vehicle crossed for 40 s" in third.loc["nrtraffic", "error"]
+    assert (failed / "summary.json").stat().st_mtime_ns != stamp
 
 
 def test_a_job_that_stops_as_a_gridlock_returns_it_instead_of_raising(tmp_path):
