@@ -81,7 +81,8 @@ def test_the_pages_show_the_registered_commands():
 def test_each_sweep_command_made_its_committed_table(study: Study):
     """Seeds, controls, grid keys and values, duration and warm-up, read back from the committed
     sweep.csv (written by the sweep itself). No run of a committed table failed, but for runs the
-    watchdog stopped as gridlocks, which are a result (the arterial past its capacity)."""
+    watchdog stopped as gridlocks, which are a result (the arterial past its capacity, and a lane
+    that starves in mixed traffic past capacity)."""
     name = next((dst for src, dst in study.copy.items() if src == "sweep.csv"), "sweep.csv")
     df = pd.read_csv(DOCS / study.docs / name)
     a = study.argv
@@ -94,7 +95,7 @@ def test_each_sweep_command_made_its_committed_table(study: Study):
         assert sorted(set(df[key])) == sorted(float(v) for v in values.split(",")), key
     stopped = df[df["status"] != "ok"]
     assert (stopped["status"] == "gridlock").all() and all("Gridlock: " in str(e) for e in stopped["error"])
-    assert stopped.empty or study.name == "bologna_pasubio_arterial"
+    assert stopped.empty or study.name in ("bologna_pasubio_arterial", "penetration")
     ok = df[df["status"] == "ok"]
     if _option(a, "--duration"):
         assert (ok["sim_time_s"] == float(_option(a, "--duration")[0])).all()
