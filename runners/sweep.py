@@ -102,11 +102,31 @@ def fingerprint(config: dict, control: str, seed: int, duration_s: float | None)
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def recorded_fingerprint(run_dir: Path) -> str | None:
+def _fingerprint_record(run_dir: Path) -> dict:
+    """What :func:`write_fingerprint` wrote into ``run_dir`` (empty where it wrote nothing readable)."""
     try:
-        return json.loads((Path(run_dir) / FINGERPRINT).read_text())["fingerprint"]
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
+        rec = json.loads((Path(run_dir) / FINGERPRINT).read_text())
+    except (OSError, ValueError):
+        return {}
+    return rec if isinstance(rec, dict) else {}
+
+
+def recorded_fingerprint(run_dir: Path) -> str | None:
+    return _fingerprint_record(run_dir).get("fingerprint")
+
+
+def write_fingerprint(run_dir: Path, spec: dict, **extra) -> None:
+    """Record the job ``spec`` a run directory holds (nothing for a job without a fingerprint)."""
+    if spec.get("fingerprint"):
+        (Path(run_dir) / FINGERPRINT).write_text(json.dumps({
+            "fingerprint": spec["fingerprint"], "scenario": spec["scenario"], "overrides": spec["overrides"],
+            "control": spec["control"], "seed": spec["seed"], "duration_s": spec["duration_s"], **extra},
+            indent=1) + "\n")
+
+
+def failed_dir(run_dir) -> Path:
+    """Where what a run that did not finish had written is kept: ``<run_dir>.failed``."""
+    return Path(run_dir).parent / f"{Path(run_dir).name}.failed"
 
 
 # ------------------------------------------------------------------ arguments
@@ -301,17 +321,10 @@ def stopped_before(job: Job) -> str | None:
     """The error of an earlier run of this very job (same configuration, control, seed and
     duration: its fingerprint) that the watchdog stopped as a gridlock, where its ``.failed``
     directory holds it; else None. The same command run again takes it as it stands: a retry
-    stops the same way."""
-    failed = Path(job.run_dir).parent / f"{Path(job.run_dir).name}.failed"
-    if not job.fingerprint or not (failed / FINGERPRINT).is_file() or _stopped_as_gridlock(failed) is None:
-        return None
-    try:
-        rec = json.loads((failed / FINGERPRINT).read_text())
-    except (OSError, ValueError):
-        return None
-    if rec.get("fingerprint") != job.fingerprint or rec.get("seed") != job.seed or not rec.get("gridlock"):
-        return None
-    return str(rec["gridlock"])
+    stops the same way. (:func:`run_job` records it only for a gridlock, and a later attempt
+    replaces the whole directory.)"""
+    rec = _fingerprint_record(failed_dir(job.run_dir)) if job.fingerprint else {}
+    return str(rec["gridlock"]) if rec.get("gridlock") and rec.get("fingerprint") == job.fingerprint else None
 
 
 def run_job(spec: dict) -> dict:
@@ -328,7 +341,7 @@ def run_job(spec: dict) -> dict:
     if os.environ.get(FAULT_KILL_WORKER) == f"{spec['seed']}:{spec['control']}":
         os._exit(70)  # fault injection (tests): this job's worker process dies
     tmp = final.parent / f".{final.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
-    failed = final.parent / f"{final.name}.failed"
+    failed = failed_dir(final)
     _kernel_cache.quiet()  # (the sweep said it before it started its workers)
     with _ONE_SIMULATION:
         try:
@@ -345,15 +358,10 @@ def run_job(spec: dict) -> dict:
             # a gridlock is a result of the run, not a fault: a retry would stop the same way
             if wrote and isinstance(exc, Exception) and _stopped_as_gridlock(failed):
                 error = f"{type(exc).__name__}: {exc}".strip()
-                if spec.get("fingerprint"):  # (the same command run again takes it as it stands: stopped_before)
-                    (failed / FINGERPRINT).write_text(json.dumps({
-                        "fingerprint": spec["fingerprint"], "seed": spec["seed"], "gridlock": error}, indent=1) + "\n")
+                write_fingerprint(failed, spec, gridlock=error)  # (the same command keeps it: stopped_before)
                 return {"status": GRIDLOCK, "error": error}
             raise
-    if spec.get("fingerprint"):
-        (tmp / FINGERPRINT).write_text(json.dumps({
-            "fingerprint": spec["fingerprint"], "scenario": spec["scenario"], "overrides": spec["overrides"],
-            "control": spec["control"], "seed": spec["seed"], "duration_s": spec["duration_s"]}, indent=1) + "\n")
+    write_fingerprint(tmp, spec)
     shutil.rmtree(failed, ignore_errors=True)
     if final.exists():  # an earlier, unfinished or different run of this job
         shutil.rmtree(final)
@@ -880,6 +888,8 @@ def table(summ: pd.DataFrame, df: pd.DataFrame) -> tuple[str, pd.DataFrame]:
 
     keys = grid_keys(summ)
     seeds = sorted(df["seed"].unique())
+    # the gridlocks of each grid point and control
+    stuck = Counter(df.loc[df["status"] == GRIDLOCK, keys + ["control"]].itertuples(index=False, name=None))
     served = "served_share_mean" in summ and summ["served_share_mean"].notna().any()
     waiting = "vehicles_waiting_to_enter_mean" in summ
     window = ""
@@ -897,8 +907,7 @@ def table(summ: pd.DataFrame, df: pd.DataFrame) -> tuple[str, pd.DataFrame]:
              + "." + window
              + (" runs (failed): the runs that finished, and those that did not; of these, the gridlocks are the "
                 "runs the watchdog stopped (a lane or junction that stood still while vehicles waited: status "
-                "`gridlock` in sweep.csv)." if (df["status"] == GRIDLOCK).any() else ""))
-    stuck = df[df["status"] == GRIDLOCK].groupby(keys + ["control"], dropna=False).size() if len(df) else None
+                "`gridlock` in sweep.csv)." if stuck else ""))
     columns = (keys + ["control", "runs (failed)", "throughput [veh/h]"] + (["served"] if served else [])
                + (["not in"] if waiting else [])
                + ["delay [s]", "LOS", "SUMO timeLoss [s]", "fuel [mL/veh]", "collisions: SUMO / own check"])
@@ -916,8 +925,7 @@ def table(summ: pd.DataFrame, df: pd.DataFrame) -> tuple[str, pd.DataFrame]:
         if waiting:
             extra.append(mean_ci(r, "vehicles_waiting_to_enter", 0))
         delay = r.get("mean_delay_s_mean", math.nan)
-        point = tuple(r[k] for k in keys + ["control"])
-        g = int(stuck.get(point if len(point) > 1 else point[0], 0)) if stuck is not None and len(stuck) else 0
+        g = stuck[tuple(r[k] for k in keys + ["control"])]
         cells = [f"{r[k]}" for k in keys] + [
             r["control"], f"{r['runs']} ({r['failed']}" + (f"; {g} gridlock{'s' * (g > 1)}" if g else "") + ")", mean_ci(r, "throughput_veh_h", 0), *extra, mean_ci(r, "mean_delay_s"),
             level_of_service(delay, _signalised(r)),
