@@ -39,7 +39,7 @@ paper: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/nrtraffic bench
 
-# every study committed under docs/, run again (about 8 run-hours; runners/studies.py, --list shows them)
+# every study committed under docs/, run again (about 10 run-hours; runners/studies.py, --list shows them)
 studies: $(STAMP)
 	$(BIN)/python -m runners.studies
 
