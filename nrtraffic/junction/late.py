@@ -17,7 +17,8 @@ So is one within :data:`EXIT_CHECK_M` of its merging zone whose exit is queued u
 
 - its merging-zone entry is closed to it: a standing obstacle for the longitudinal barrier, so that
   it stops with its front bumper at the entry (where it can still stop there at the barrier's
-  braking, ``barriers.max_braking_mps2``; a vehicle too close to stop has nearly kept its time);
+  braking, ``barriers.max_braking_mps2``; a vehicle too close to stop has nearly kept its time).
+  Once closed, it stays closed while the vehicle is late, until it stands;
 - once it stands, its plan and reservation are given up (:meth:`~nrtraffic.planning.coordinator.
   Coordinator.cancel`), SUMO holds it where it stands, and its start from rest is reserved again
   behind the last vehicle of its lane, as for any vehicle standing at its stop line
@@ -53,6 +54,11 @@ class LateGuard:
         self.a, self.v_max = sc.planning.u_max_mps2, sc.planning.v_max_mps
         self.brake = sc.barriers.max_braking_mps2
         self.gated: dict[str, float] = {}  # late vehicle -> arc length [m] its centre of gravity stops at
+        # a gate once closed stays closed while its vehicle is late, until it stands and starts again:
+        # the barrier brings it to the stop ever more slowly, and within a few cm of it the test
+        # "can it still stop there" fails at a walking pace, which had let it drive on into the
+        # merging zone seconds late
+        self.closed: dict[str, float] = {}
 
     def _late(self, s: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Which rows of the kernel's table are late now, at arc lengths ``s`` [m] and speeds ``v``
@@ -71,6 +77,9 @@ class LateGuard:
         st = self.st
         ctl = st.kernel.table
         self.gated.clear()
+        if self.closed:
+            ids = set(ctl.ids)
+            self.closed = {vid: stop for vid, stop in self.closed.items() if vid in ids}
         if not ctl.ids:
             return
         s, v = ctl.out[:, kb.OUT_S], np.hypot(ctl.X[:, 2], ctl.X[:, 3])
@@ -89,8 +98,8 @@ class LateGuard:
                 again[i] = True  # (a car standing off its path's lanes cannot start from rest there)
                 continue
             stop = float(ctl.s_zone[i, 0]) - cg  # front bumper at the merging-zone entry
-            if v[i] * v[i] / (2.0 * self.brake) <= stop - s[i]:
-                self.gated[vid] = stop
+            if vid in self.closed or v[i] * v[i] / (2.0 * self.brake) <= stop - s[i]:
+                self.gated[vid] = self.closed[vid] = stop
         if again.any():
             self._start_again(again)
 
@@ -101,6 +110,7 @@ class LateGuard:
             st.records[ctl.ids[i]].acc = ctl.acc[i].copy()
         ctl.keep(~again)
         for vid in ids:
+            self.closed.pop(vid, None)
             rec = st.records[vid]
             st.junctions[rec.junction].coord.cancel(vid)
             st.sumo.release(vid)
