@@ -58,7 +58,7 @@ class LateGuard:
         # the barrier brings it to the stop ever more slowly, and within a few cm of it the test
         # "can it still stop there" fails at a walking pace, which had let it drive on into the
         # merging zone seconds late
-        self.closed: dict[str, float] = {}
+        self.closed: set[str] = set()  # (the stop itself is worked out again each step)
 
     def _late(self, s: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Which rows of the kernel's table are late now, at arc lengths ``s`` [m] and speeds ``v``
@@ -77,9 +77,8 @@ class LateGuard:
         st = self.st
         ctl = st.kernel.table
         self.gated.clear()
-        if self.closed:
-            ids = set(ctl.ids)
-            self.closed = {vid: stop for vid, stop in self.closed.items() if vid in ids}
+        if self.closed:  # (those that left the table: released, lost or started again)
+            self.closed &= set(ctl.ids)
         if not ctl.ids:
             return
         s, v = ctl.out[:, kb.OUT_S], np.hypot(ctl.X[:, 2], ctl.X[:, 3])
@@ -99,7 +98,8 @@ class LateGuard:
                 continue
             stop = float(ctl.s_zone[i, 0]) - cg  # front bumper at the merging-zone entry
             if vid in self.closed or v[i] * v[i] / (2.0 * self.brake) <= stop - s[i]:
-                self.gated[vid] = self.closed[vid] = stop
+                self.gated[vid] = stop
+                self.closed.add(vid)
         if again.any():
             self._start_again(again)
 
@@ -110,7 +110,7 @@ class LateGuard:
             st.records[ctl.ids[i]].acc = ctl.acc[i].copy()
         ctl.keep(~again)
         for vid in ids:
-            self.closed.pop(vid, None)
+            self.closed.discard(vid)
             rec = st.records[vid]
             st.junctions[rec.junction].coord.cancel(vid)
             st.sumo.release(vid)
