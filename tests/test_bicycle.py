@@ -146,7 +146,7 @@ def test_kernel_plant_step_is_the_forward_euler_step_of_eq_1():
     kb.advance(X, U, 0.0, 1, cfg, p, p, lo, hi, prof, np.zeros(1), np.zeros(1), np.zeros(1, dtype=np.int64),
                np.array([0, len(path.s)], dtype=np.int64), path.xy, path.s, segment_frames(path.xy, path.s),
                np.zeros(1, dtype=np.int64), np.full(1, kb.NO_LEADER, dtype=np.int64), np.zeros((1, 6)), kb.new_acc(1),
-               out, np.zeros((1, 1, 0)), np.zeros((1, 2)), X.copy())
+               out, np.zeros((1, 1, 0)), np.zeros((1, 2)), X.copy(), np.full((1, 2), np.nan))
     ref = x0.copy()
     euler_step(ref, np.array([out[0, kb.OUT_A], out[0, kb.OUT_D]]), p, 0.005, np.empty(6))
     assert np.allclose(X[0], ref, rtol=0.0, atol=1e-12)

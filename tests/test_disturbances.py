@@ -43,7 +43,8 @@ def _kernel(x0, u0, n_steps, alpha=0.0, lag_s=0.0, force=(0.0, 0.0), noise_sd=No
         kb.advance(X, U, k * H, 1, cfg, p, p, np.array([-6.0, -0.78]), np.array([3.0, 0.78]), prof, np.zeros(1),
                    np.zeros(1), np.zeros(1, dtype=np.int64), np.array([0, len(path.s)], dtype=np.int64), path.xy,
                    path.s, segment_frames(path.xy, path.s), np.zeros(1, dtype=np.int64),
-                   np.full(1, kb.NO_LEADER, dtype=np.int64), np.zeros((1, 6)), acc, out, noise, act, xe)
+                   np.full(1, kb.NO_LEADER, dtype=np.int64), np.zeros((1, 6)), acc, out, noise, act, xe,
+                   np.full((1, 2), np.nan))
         states.append(X[0].copy())
         errors.append(xe[0] - X[0])
     return np.array(states), np.array(acts), np.array(errors)

@@ -151,3 +151,25 @@ def test_a_gated_car_that_creeps_up_to_its_stop_does_not_drive_on_late(tmp_path)
     tol = sc.coordinator.late_tolerance_s(False)
     assert len(entered) > 150 and (late <= tol + 0.1).all(), entered.loc[late > tol + 0.1, "vehicle_id"].tolist()
     assert res.summary["collisions"] == 0
+
+
+def test_a_late_car_behind_a_car_that_sets_off_stops_at_its_closed_entry(tmp_path):
+    """Andrea Costa at 1.5 times its demand, seed 7 (the study's): ``Vittorio_Veneto_1_13`` is
+    late, stops at its merging-zone entry and gets a new start from rest at 122.3 s. The car behind
+    it, ``Vittorio_Veneto_1_12``, was planned to enter at 121.0 s, passing it; it waits behind it,
+    late in turn. With the car ahead as its barrier's only obstacle it followed it off at the
+    barrier's gap and entered its merging zone 2.7 s late. Its closed entry is a second obstacle:
+    no controlled car enters later than the late guard's allowance."""
+    from conftest import SCENARIOS
+
+    sc = scenario.load(SCENARIOS / "bologna_acosta",
+                       ["demand.scale=1.5", "demand.depart_offset_s=30", "scenario.duration_s=135.0"])
+    res = run_scenario(sc, tmp_path / "run", seed=7)
+    v = res.vehicles
+    entered = v[v["t_merge_actual_s"].notna() & v["t_merge_planned_s"].notna()]
+    late = entered["t_merge_actual_s"] - entered["t_merge_planned_s"]
+    tol = sc.coordinator.late_tolerance_s(False)
+    assert len(entered) > 80 and (late <= tol + 0.1).all(), entered.loc[late > tol + 0.1, "vehicle_id"].tolist()
+    ahead = v.set_index("vehicle_id").loc["Vittorio_Veneto_1_13"]
+    assert ahead["replans"] == 1 and ahead["profile"] == "from_rest"  # (the case this test is about)
+    assert res.summary["collisions"] == 0 and res.summary["collisions_geometric"] == 0

@@ -94,7 +94,7 @@ def _ref_xy(prof, tau, s_enter, xy, s, near):
 
 @njit(cache=True, error_model="numpy")
 def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_enter, s_enter, path_id, path_off,
-            path_xy_all, path_s_all, path_frames, hint, lead_idx, lead_ext, acc, out, noise, act, xe):
+            path_xy_all, path_s_all, path_frames, hint, lead_idx, lead_ext, acc, out, noise, act, xe, gate):
     """Advance all vehicles from ``t_start`` by ``n_sub`` plant steps (in place).
 
     X (N,6), U (N,2): plant states and tracker inputs (the update law's state). prof (N,K,5):
@@ -107,7 +107,10 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
     barrier reads of it as a leader) at ``t_start`` on entry and at the end of the step on return.
     noise (N, n_sub, N_NOISE) or (N, n_sub, 0) without noise: the measurement noise of every
     sub-step. act (N, 2): the actuators' output (with a lag; updated). xe (N, 6): the state
-    observer's estimate (with an observer; updated).
+    observer's estimate (with an observer; updated). gate (N, 2): a second, standing obstacle
+    (x, y) [m] for the longitudinal barrier besides the leader (a late vehicle's closed
+    merging-zone entry behind a nearer leader, :mod:`nrtraffic.junction.late`), NaN for none; the
+    acceleration then keeps within both barriers' bounds.
     """
     N = X.shape[0]
     h = cfg[CFG_H]
@@ -251,6 +254,29 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
                 if hb < acc[i, ACC_MIN_H_LONG]:
                     acc[i, ACC_MIN_H_LONG] = hb
                 if st != cbf.INACTIVE:
+                    pinned_a = True
+                    acc[i, ACC_LONG_ACTIVE] += 1.0
+                    n_long[i] += 1.0
+                if st == cbf.FALLBACK:
+                    acc[i, ACC_LONG_FALLBACK] += 1.0
+            # ---- a second, standing obstacle: the vehicle's closed merging-zone entry
+            if cbf_long and not math.isnan(gate[i, 0]):
+                lead[0] = gate[i, 0]
+                lead[1] = gate[i, 1]
+                for k in range(2, 6):
+                    lead[k] = 0.0
+                _, G, b = cbf.long_constraint_given(xv, cpv, spv, f2, f3, g3, lead, cfg[CFG_D0], cfg[CFG_A_BAR],
+                                                    cfg[CFG_LONG_GAIN], cfg[CFG_ROOT_C])
+                if qp_mode == 0:
+                    a, st = cbf.long_filter_closed(u_app[0], G, b, u_lo[0], u_hi[0])
+                else:
+                    a_star = u_app[0]
+                    lo = u_lo[0]
+                    hi = u_hi[0]
+                    with objmode(a="float64", st="int64"):
+                        a, st = _qp(a_star, G, b, lo, hi)
+                u_app[0] = a
+                if st != cbf.INACTIVE and not pinned_a:
                     pinned_a = True
                     acc[i, ACC_LONG_ACTIVE] += 1.0
                     n_long[i] += 1.0

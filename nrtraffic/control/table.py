@@ -26,14 +26,15 @@ class ControlledTable:
     on, ``acc`` its running figures, ``out`` the kernel's outputs of the last step, ``lead_idx``/
     ``lead_ext``/``gap`` its leader (a row, or an external state) and the bumper gap to it [m],
     ``s_zone`` its merging-zone entry and exit on its path [m], ``t_merge`` its planned
-    merging-zone entry [s], ``s_last`` its arc length at
+    merging-zone entry [s], ``gate`` the point (x, y) [m] of its closed merging-zone entry when a
+    nearer leader is its ``lead_*`` (NaN: none; :mod:`nrtraffic.junction.late`), ``s_last`` its arc length at
     the start of the step [m], ``act`` the actuators' output (with an actuator lag), ``xe`` the
     state observer's estimate (with an observer). ``rows`` is each vehicle's row in SUMO's table
     of the step (-1: SUMO no longer lists it).
     """
 
     COLUMNS = ("X", "U", "prof", "t_enter", "s_enter", "path_id", "hint", "acc", "out", "lead_idx", "lead_ext",
-               "gap", "s_zone", "t_merge", "s_last", "act", "xe")
+               "gap", "s_zone", "t_merge", "s_last", "act", "xe", "gate")
 
     def __init__(self) -> None:
         self.ids: list[str] = []
@@ -56,6 +57,7 @@ class ControlledTable:
         self.s_last = np.zeros(n)
         self.act = np.zeros((n, 2))
         self.xe = np.zeros((n, 6))
+        self.gate = np.full((n, 2), np.nan)
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -74,6 +76,7 @@ class ControlledTable:
             "s_zone": [list(s_zone)], "t_merge": [t_merge], "s_last": [s0],
             "act": np.zeros((1, 2)),  # SUMO drove it at constant speed, straight ahead
             "xe": x0[None],  # the observer starts from the state at admission
+            "gate": np.full((1, 2), np.nan),
         }
         for name in self.COLUMNS:
             cur = getattr(self, name)

@@ -15,9 +15,10 @@ drivers take part (:meth:`~nrtraffic.planning.coordinator.CoordinatorSettings.la
 So is one within :data:`EXIT_CHECK_M` of its merging zone whose exit is queued up to the zone
 (:mod:`nrtraffic.junction.exits`). Then:
 
-- its merging-zone entry is closed to it: a standing obstacle for the longitudinal barrier, so that
-  it stops with its front bumper at the entry (where it can still stop there at the barrier's
-  braking, ``barriers.max_braking_mps2``; a vehicle too close to stop has nearly kept its time).
+- its merging-zone entry is closed to it: a standing obstacle for the longitudinal barrier (as well
+  as the vehicle ahead, where that is nearer), so that it stops with its front bumper at the entry
+  (where it can still stop there at the barrier's braking, ``barriers.max_braking_mps2``; a
+  vehicle too close to stop has nearly kept its time).
   Once closed, it stays closed while the vehicle is late, until it stands;
 - once it stands, its plan and reservation are given up (:meth:`~nrtraffic.planning.coordinator.
   Coordinator.cancel`), SUMO holds it where it stands, and its start from rest is reserved again
@@ -59,6 +60,7 @@ class LateGuard:
         # "can it still stop there" fails at a walking pace, which had let it drive on into the
         # merging zone seconds late
         self.closed: set[str] = set()  # (the stop itself is worked out again each step)
+        self._gates = False  # some row of the kernel's table has a second obstacle (``gate``)
 
     def _late(self, s: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Which rows of the kernel's table are late now, at arc lengths ``s`` [m] and speeds ``v``
@@ -119,13 +121,20 @@ class LateGuard:
             self.admission.reserve_from_rest(vid)  # (controlled -> starting)
 
     def close_gates(self) -> None:
-        """Make the merging-zone entry the leader of each late vehicle that can stop before it,
-        where it is nearer than the vehicle ahead: a standing obstacle whose centre of gravity
-        lies the barrier's stopping distance ``d0`` beyond the stop."""
-        if not self.gated:
-            return
+        """Make the merging-zone entry of each late vehicle that can stop before it a standing
+        obstacle for its longitudinal barrier, whose centre of gravity lies the barrier's stopping
+        distance ``d0`` beyond the stop: its leader where it is nearer than the vehicle ahead,
+        otherwise a second obstacle besides that vehicle (the table's ``gate``). With the vehicle
+        ahead alone, a late car behind a car that stands at the entry would follow it when it sets
+        off, at the barrier's gap, and once that car had entered be too close to its own closed
+        entry to stop there."""
         st, kern = self.st, self.st.kernel
         ctl = kern.table
+        if self._gates:  # (last step's second obstacles)
+            ctl.gate[:] = np.nan
+            self._gates = False
+        if not self.gated:
+            return
         d0 = float(kern.cfg[kb.CFG_D0])  # centre to centre at a stop behind a leader [m]
         slack = d0 - st.params.length  # ... less the bumper gap there [m]
         row = {v: i for i, v in enumerate(ctl.ids)}
@@ -135,8 +144,10 @@ class LateGuard:
                 continue
             s = float(ctl.out[i, kb.OUT_S])
             room = stop - s  # how far its centre of gravity may go on [m]
-            if ctl.lead_idx[i] != kb.NO_LEADER and not math.isnan(ctl.gap[i]) and ctl.gap[i] - slack < room:
-                continue  # (the vehicle ahead stops it sooner)
             px, py = st.paths[st.records[vid].movement].path.xy_at(stop + d0)
+            if ctl.lead_idx[i] != kb.NO_LEADER and not math.isnan(ctl.gap[i]) and ctl.gap[i] - slack < room:
+                ctl.gate[i] = (px, py)  # (the vehicle ahead is nearer: it stays the leader)
+                self._gates = True
+                continue
             ctl.lead_idx[i] = kb.EXTERNAL_LEADER
             ctl.lead_ext[i] = (px, py, 0.0, 0.0, 0.0, 0.0)
