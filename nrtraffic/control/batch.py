@@ -187,6 +187,7 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
             u_app[1] = u[1]
             pinned_a = False
             pinned_d = False
+            fell = False  # the longitudinal barrier fell back
             fr = a0 + hint[i]
             tx = path_frames[fr, 0]
             ty = path_frames[fr, 1]
@@ -259,6 +260,7 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
                     n_long[i] += 1.0
                 if st == cbf.FALLBACK:
                     acc[i, ACC_LONG_FALLBACK] += 1.0
+                    fell = True
             # ---- a second, standing obstacle: the vehicle's closed merging-zone entry
             if cbf_long and not math.isnan(gate[i, 0]):
                 lead[0] = gate[i, 0]
@@ -276,11 +278,11 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
                     with objmode(a="float64", st="int64"):
                         a, st = _qp(a_star, G, b, lo, hi)
                 u_app[0] = a
-                if st != cbf.INACTIVE and not pinned_a:
+                if st != cbf.INACTIVE and not pinned_a:  # (a plant step is counted once)
                     pinned_a = True
                     acc[i, ACC_LONG_ACTIVE] += 1.0
                     n_long[i] += 1.0
-                if st == cbf.FALLBACK:
+                if st == cbf.FALLBACK and not fell:
                     acc[i, ACC_LONG_FALLBACK] += 1.0
             # ---- tracker, eq. (12). Anti-windup: it integrates from the applied input, and an input
             # a barrier overrides is pinned (the flow moves the other one alone). Without: it runs on
