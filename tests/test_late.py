@@ -1,6 +1,8 @@
 """A controlled vehicle held up before its merging zone by what its plan did not foresee never
 enters the merging zone later than planned (nrtraffic.junction.late)."""
 
+import math
+
 import numpy as np
 import pytest
 
@@ -173,3 +175,46 @@ def test_a_late_car_behind_a_car_that_sets_off_stops_at_its_closed_entry(tmp_pat
     ahead = v.set_index("vehicle_id").loc["Vittorio_Veneto_1_13"]
     assert ahead["replans"] == 1 and ahead["profile"] == "from_rest"  # (the case this test is about)
     assert res.summary["collisions"] == 0 and res.summary["collisions_geometric"] == 0
+
+
+@pytest.mark.parametrize("gated", [True, False])
+def test_the_kernel_stops_a_car_at_its_gate_while_its_leader_drives_away(gated):
+    """The kernel alone, on a straight road: a car at 10 m/s whose profile goes on at 10 m/s, behind
+    a leader 12 m ahead that drives away at 15 m/s, and a standing second obstacle (its closed
+    entry) at 80 m. Its centre of gravity comes to rest at the barrier's distance ``d0`` before that
+    point, to a few cm (the barrier's guarantee: braking at ``barriers.max_braking_mps2`` from any
+    state it admits), and never nearer; without the obstacle it drives on past it."""
+    from conftest import SCENARIOS
+
+    from nrtraffic.control import batch as kb
+    from nrtraffic.control.kernel import Kernel
+    from nrtraffic.control.table import N_PROFILE_SEG
+    from nrtraffic.geometry import LanePath
+    from nrtraffic.junction import Movement
+
+    sc = scenario.load(SCENARIOS / "cross4")
+    kern = Kernel(sc, sc.vehicle.params(), seed=1)
+    path = LanePath.from_points([(0.0, 0.0), (500.0, 0.0)])
+    road = Movement("road", "road", "through", ("road",), path, ["road_0"], {"road_0": (0.0, 1.0)}, 0.0, 400.0,
+                    450.0)
+    kern.pack_paths({"road": road})
+    prof = np.zeros((N_PROFILE_SEG, 5))
+    prof[:, 0] = np.arange(N_PROFILE_SEG) * 1e9
+    prof[:, 2] = 10.0  # constant speed [m/s]
+    kern.take("car", np.array([0.0, 0.0, 10.0, 0.0, 0.0, 0.0]), prof, 0.0, 0.0, 0.0, road, kb.new_acc(1)[0])
+    ctl, d0, dt = kern.table, float(kern.cfg[kb.CFG_D0]), sc.sumo.step_length_s
+    x_gate = 80.0
+    xs, vs = [], []
+    for k in range(150):  # 15 s
+        t = k * dt
+        ctl.lead_idx[0] = kb.EXTERNAL_LEADER
+        ctl.lead_ext[0] = (12.0 + 15.0 * t, 0.0, 15.0, 0.0, 0.0, 0.0)
+        ctl.gate[0] = (x_gate, 0.0) if gated else (np.nan, np.nan)
+        kern.advance(t, dt)
+        xs.append(ctl.X[0, 0])
+        vs.append(math.hypot(ctl.X[0, 2], ctl.X[0, 3]))
+    if gated:
+        assert max(xs) <= x_gate - d0 + 0.05
+        assert xs[-1] >= x_gate - d0 - 0.5 and vs[-1] < 0.1
+    else:
+        assert xs[-1] > x_gate + 50.0

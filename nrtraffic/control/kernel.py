@@ -132,7 +132,8 @@ class Kernel:
             noise = self.noise_rng.standard_normal((n, self.n_sub, kb.N_NOISE)) * self.noise_sd
         kb.advance(ctl.X, ctl.U, t, self.n_sub, self.cfg, self.plant_p, self.pred_p, self.u_lo, self.u_hi,
                    ctl.prof, ctl.t_enter, ctl.s_enter, ctl.path_id, self.path_off, self.path_xy, self.path_s,
-                   self.path_frames, ctl.hint, ctl.lead_idx, ctl.lead_ext, ctl.acc, ctl.out, noise, ctl.act, ctl.xe, ctl.gate)
+                   self.path_frames, ctl.hint, ctl.lead_idx, ctl.lead_ext, ctl.acc, ctl.out, noise, ctl.act, ctl.xe,
+                   ctl.gate)
         if not math.isfinite(float(ctl.X.sum())):  # a NaN or an infinity anywhere makes the sum one
             bad = [v for v, ok in zip(ctl.ids, np.isfinite(ctl.X).all(axis=1)) if not ok]
             raise FloatingPointError(f"vehicle state became non-finite at t={t:.2f} s: {', '.join(bad)}")

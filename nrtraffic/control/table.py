@@ -27,8 +27,8 @@ class ControlledTable:
     ``lead_ext``/``gap`` its leader (a row, or an external state) and the bumper gap to it [m],
     ``s_zone`` its merging-zone entry and exit on its path [m], ``t_merge`` its planned
     merging-zone entry [s], ``gate`` the point (x, y) [m] of its closed merging-zone entry when a
-    nearer leader is its ``lead_*`` (NaN: none; :mod:`nrtraffic.junction.late`), ``s_last`` its arc length at
-    the start of the step [m], ``act`` the actuators' output (with an actuator lag), ``xe`` the
+    nearer leader is its ``lead_*`` (NaN: none; :mod:`nrtraffic.junction.late`), ``s_last`` its
+    arc length at the start of the step [m], ``act`` the actuators' output (with an actuator lag), ``xe`` the
     state observer's estimate (with an observer). ``rows`` is each vehicle's row in SUMO's table
     of the step (-1: SUMO no longer lists it).
     """
