@@ -86,6 +86,17 @@ def _qp(a_star, G, b, lo, hi):
 
 
 @njit(cache=True, error_model="numpy")
+def _long_filter(a_star, G, b, a_lo, a_hi, qp_mode):
+    """The longitudinal barrier's QP ``G a <= b``, ``a_lo <= a <= a_hi`` closest to ``a_star``:
+    its closed form (``qp_mode`` 0) or through qpsolvers (1); returns ``(a, status)``."""
+    if qp_mode == 0:
+        return cbf.long_filter_closed(a_star, G, b, a_lo, a_hi)
+    with objmode(a="float64", st="int64"):
+        a, st = _qp(a_star, G, b, a_lo, a_hi)
+    return a, st
+
+
+@njit(cache=True, error_model="numpy")
 def _ref_xy(prof, tau, s_enter, xy, s, near):
     """Reference point ``(x, y)`` [m] at local time ``tau`` [s]: the profile's distance mapped onto
     the lane path (searched from segment ``near``, the vehicle's own)."""
@@ -242,14 +253,7 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
             if cbf_long and has_lead:
                 hb, G, b = cbf.long_constraint_given(xv, cpv, spv, f2, f3, g3, lead, cfg[CFG_D0], cfg[CFG_A_BAR],
                                                      cfg[CFG_LONG_GAIN], cfg[CFG_ROOT_C])
-                if qp_mode == 0:
-                    a, st = cbf.long_filter_closed(u_app[0], G, b, u_lo[0], u_hi[0])
-                else:
-                    a_star = u_app[0]
-                    lo = u_lo[0]
-                    hi = u_hi[0]
-                    with objmode(a="float64", st="int64"):
-                        a, st = _qp(a_star, G, b, lo, hi)
+                a, st = _long_filter(u_app[0], G, b, u_lo[0], u_hi[0], qp_mode)
                 u_app[0] = a
                 out[i, OUT_H_LONG] = hb
                 if hb < acc[i, ACC_MIN_H_LONG]:
@@ -269,14 +273,7 @@ def advance(X, U, t_start, n_sub, cfg, plant_p, pred_p, u_lo, u_hi, prof, t_ente
                     lead[k] = 0.0
                 _, G, b = cbf.long_constraint_given(xv, cpv, spv, f2, f3, g3, lead, cfg[CFG_D0], cfg[CFG_A_BAR],
                                                     cfg[CFG_LONG_GAIN], cfg[CFG_ROOT_C])
-                if qp_mode == 0:
-                    a, st = cbf.long_filter_closed(u_app[0], G, b, u_lo[0], u_hi[0])
-                else:
-                    a_star = u_app[0]
-                    lo = u_lo[0]
-                    hi = u_hi[0]
-                    with objmode(a="float64", st="int64"):
-                        a, st = _qp(a_star, G, b, lo, hi)
+                a, st = _long_filter(u_app[0], G, b, u_lo[0], u_hi[0], qp_mode)
                 u_app[0] = a
                 if st != cbf.INACTIVE and not pinned_a:  # (a plant step is counted once)
                     pinned_a = True
