@@ -181,9 +181,10 @@ def test_a_late_car_behind_a_car_that_sets_off_stops_at_its_closed_entry(tmp_pat
 def test_the_kernel_stops_a_car_at_its_gate_while_its_leader_drives_away(gated):
     """The kernel alone, on a straight road: a car at 10 m/s whose profile goes on at 10 m/s, behind
     a leader 12 m ahead that drives away at 15 m/s, and a standing second obstacle (its closed
-    entry) at 80 m. Its centre of gravity comes to rest at the barrier's distance ``d0`` before that
-    point, to a few cm (the barrier's guarantee: braking at ``barriers.max_braking_mps2`` from any
-    state it admits), and never nearer; without the obstacle it drives on past it."""
+    entry) at 80 m. Its centre of gravity comes to rest within 0.5 m short of the barrier's distance
+    ``d0`` before that point, and never more than 5 cm past it (the barrier's guarantee: braking at
+    ``barriers.max_braking_mps2`` from any state it admits, less the discrete step's overshoot);
+    without the obstacle it drives on past it."""
     from conftest import SCENARIOS
 
     from nrtraffic.control import batch as kb

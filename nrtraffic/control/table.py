@@ -28,9 +28,9 @@ class ControlledTable:
     ``s_zone`` its merging-zone entry and exit on its path [m], ``t_merge`` its planned
     merging-zone entry [s], ``gate`` the point (x, y) [m] of its closed merging-zone entry when a
     nearer leader is its ``lead_*`` (NaN: none; :mod:`nrtraffic.junction.late`), ``s_last`` its
-    arc length at the start of the step [m], ``act`` the actuators' output (with an actuator lag), ``xe`` the
-    state observer's estimate (with an observer). ``rows`` is each vehicle's row in SUMO's table
-    of the step (-1: SUMO no longer lists it).
+    arc length at the start of the step [m], ``act`` the actuators' output (with an actuator
+    lag), ``xe`` the state observer's estimate (with an observer). ``rows`` is each vehicle's row
+    in SUMO's table of the step (-1: SUMO no longer lists it).
     """
 
     COLUMNS = ("X", "U", "prof", "t_enter", "s_enter", "path_id", "hint", "acc", "out", "lead_idx", "lead_ext",
