@@ -62,6 +62,7 @@ class Sumo:
 # the work a run may take per simulated second, per vehicle: plant steps per SUMO step, and nominal
 # predictor steps per horizon (each plant step runs one prediction)
 MAX_PLANT_STEPS_PER_STEP = 1000
+MIN_CONTROL_ZONE_M = 20.0  # the shortest control zone [m]: set, or left to a route after a cut
 MAX_PREDICTOR_STEPS = 10000
 MAX_PREDICTOR_STEPS_PER_S = 2_000_000  # plant steps per second x predictor steps per horizon (the paper's Euler: 1.6e6)
 
@@ -339,6 +340,10 @@ class JunctionSpec:
             raise ScenarioError("every [[junctions]] entry needs an id (a junction of the network)")
         if self.control_zone_m < 0 or self.merging_zone_m < 0:
             raise ScenarioError(f"junctions.{self.id}: control_zone_m and merging_zone_m must be >= 0 (0: [zones])")
+        if 0 < self.control_zone_m < MIN_CONTROL_ZONE_M:
+            raise ScenarioError(f"junctions.{self.id}: control_zone_m = {self.control_zone_m:g} is shorter than the "
+                                f"{MIN_CONTROL_ZONE_M:g} m a control zone needs: give {MIN_CONTROL_ZONE_M:g} or more "
+                                "(0: zones.control_zone_m)")
 
 
 @dataclass(frozen=True)
@@ -647,7 +652,7 @@ RANGES: dict[str, dict[str, tuple[float, float]]] = {
     "controller": {"plant_step_s": (1e-4, 0.1), "predictor_step_s": (1e-4, 1.0), "horizon_s": (1e-3, 20.0),
                    "alpha": (1e-3, 1e5), "damping": (0.0, 1.0), "predictor_mass_factor": (0.2, 10.0),
                    "a_min_mps2": (-15.0, 0.0), "a_max_mps2": (0.0, 10.0), "steer_max_rad": (0.0, 1.2)},
-    "zones": {"control_zone_m": (0.0, 5000.0), "merging_zone_m": (0.0, 500.0)},
+    "zones": {"control_zone_m": (MIN_CONTROL_ZONE_M, 5000.0), "merging_zone_m": (0.0, 500.0)},
     "planning": {"v_min_mps": (0.0, 70.0), "v_max_mps": (0.0, 70.0), "u_min_mps2": (-15.0, 0.0),
                  "u_max_mps2": (0.0, 10.0), "max_lateral_accel_mps2": (0.0, 15.0)},
     "coordinator": {"rear_end_spacing_m": (0.0, 200.0), "min_merge_headway_s": (0.0, 3600.0),
@@ -682,7 +687,7 @@ RANGES: dict[str, dict[str, tuple[float, float]]] = {
 # the bounds of RANGES that a key may not take itself (JSON Schema's exclusiveMinimum / exclusiveMaximum)
 OPEN: dict[str, str] = {
     "controller.a_min_mps2": "max", "controller.a_max_mps2": "min", "controller.steer_max_rad": "min",
-    "zones.control_zone_m": "min", "zones.merging_zone_m": "min", "planning.v_min_mps": "min", "planning.v_max_mps": "min",
+    "zones.merging_zone_m": "min", "planning.v_min_mps": "min", "planning.v_max_mps": "min",
     "planning.u_min_mps2": "max", "planning.u_max_mps2": "min", "demand.entry_speed_mps": "min",
     "human.speed_dev": "max", "outputs.trajectory_interval_s": "min",
 }

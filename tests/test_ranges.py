@@ -85,3 +85,30 @@ def test_values_inside_the_documented_range_are_taken(setting):
     ranges are taken: the range had refused every negative grade that the check allows, and
     allowed speed_dev up to 1 where the check stops at 0.5."""
     S.load(PAPER, [setting])
+
+
+@pytest.mark.parametrize("metres, taken", [(10.0, False), (19.9, False), (20.0, True), (0.0, True)])
+def test_a_junction_of_its_own_control_zone_needs_20_m(metres, taken, tmp_path):
+    """A control zone shorter than 20 m (the shortest a cut may leave a route, junction.build)
+    is refused for one junction of a corridor as for ``zones.control_zone_m``, naming the key;
+    0 (take ``[zones]``'s) and 20 m are taken."""
+    from conftest import copy_scenario
+
+    folder = copy_scenario("corridor3", tmp_path / "c", 'id = "J2"\n', f'id = "J2"\ncontrol_zone_m = {metres}\n')
+    if taken:
+        sc = S.load(folder / "scenario.toml")
+        want = metres or sc.zones.control_zone_m
+        assert [j.control_zone_m for j in sc.controlled_junctions() if j.id == "J2"] == [want]
+    else:
+        with pytest.raises(S.ScenarioError, match=r"junctions\.J2: control_zone_m"):
+            S.load(folder / "scenario.toml")
+
+
+def test_a_control_zone_under_20_m_is_refused_before_sumo_starts(tmp_path):
+    """``nrtraffic run`` with ``zones.control_zone_m=10``: exit 2, the key named, nothing run."""
+    out = tmp_path / "run"
+    proc = subprocess.run([sys.executable, "-m", "runners.cli", "run", str(SCENARIOS / "cross4"), "--duration", "10",
+                           "--set", "zones.control_zone_m=10", "--out", str(out)], capture_output=True, text=True,
+                          cwd=ROOT)
+    assert proc.returncode == 2 and "zones.control_zone_m" in proc.stderr
+    assert not (out / "summary.json").exists()

@@ -19,9 +19,9 @@ import numpy as np
 from nrtraffic.geometry import LanePath
 from nrtraffic.junction import Junction, Layout, Movement
 from nrtraffic.planning.conflicts import MovementGeometry, classify, conflict_areas
+from nrtraffic.scenario import MIN_CONTROL_ZONE_M
 from nrtraffic.sumo.network import edge_of
 
-MIN_CONTROL_ZONE_M = 20.0  # shortest control zone a route may leave after a cut [m]
 # on a road with several lanes between two controlled junctions, where the lane decides the turn:
 # the stretch after the upstream merging zone where SUMO's driver changes lanes for its next turn,
 # before the control zone begins (about 4 s at 50 km/h) [m]
