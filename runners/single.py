@@ -422,12 +422,14 @@ def claim_run_dir(out: Path, sc: scenario_mod.Scenario, seed: int | None, durati
         # what the new run writes must not meet a file that no earlier run there created (the user's)
         ours = set(m["created"])
         # (every name a run may write or read: a stray fcd.xml would be read for its figures)
-        # (a link counts, also one to nothing: the run would write where it points)
-        clash = sorted(n for n in {*RUN_FILES, *run_file_names(sc)} if n != "sumo" and n not in ours
-                       and ((out / n).is_symlink() or (out / n).exists()))
+        # (a link counts, also one to nothing: the run would write where it points; so does its sumo/
+        # folder replaced by a link, where that folder was there before the run)
+        clash = sorted(n for n in {*RUN_FILES, *run_file_names(sc)} if n not in ours
+                       and ((out / n).is_symlink() or (n != "sumo" and (out / n).exists())))
         if clash:
-            raise ValueError(f"--out {out} holds {', '.join(clash)}, which no earlier run there created (files of your "
-                             "own?): a run would write over them; choose another folder")
+            named = ", ".join(f"{n} (a link)" if (out / n).is_symlink() else n for n in clash)
+            raise ValueError(f"--out {out} holds {named}, which no earlier run there created (files of your "
+                             "own?): a run would write over them, or through a link; choose another folder")
         remove_run_files(out, keep=sc.network_path)
     except BaseException:
         unlock_run_dir(out)

@@ -1985,3 +1985,24 @@ def test_one_setting_given_twice_with_two_values_is_refused(tmp_path, capsys):
     assert not (tmp_path / "o").exists()
     assert main(["run", str(CROSS4), *short, "--set", "demand.rate_veh_h=100", "--set", "demand.rate_veh_h=100",
                  "--out", str(tmp_path / "o")]) == 0
+
+
+def test_force_refuses_a_sumo_folder_of_the_users_that_became_a_link(tmp_path, capsys):
+    """A run's folder whose ``sumo/`` was there before the run (the user's file in it when the run
+    was made again there), then replaced by a link to a folder elsewhere: ``--force`` had written
+    the run's network, route file and configuration through it, over the user's files of the same
+    names. Refused (exit 2), naming it; nothing at the link's target changes."""
+    base = ["run", str(CROSS4), "--duration", "5", "--set", "outputs.warmup_s=0", "--no-progress"]
+    out = tmp_path / "o"
+    assert main(base + ["--out", str(out)]) == 0
+    (out / "sumo" / "notes.txt").write_text("mine")
+    assert main(base + ["--set", "zones.control_zone_m=300", "--out", str(out), "--force"]) == 0
+    assert "sumo" in json.loads((out / "manifest.json").read_text())["preexisting"]
+    elsewhere = tmp_path / "elsewhere"
+    shutil.move(out / "sumo", elsewhere)
+    (out / "sumo").symlink_to(elsewhere)
+    before = {p.name: p.read_bytes() for p in elsewhere.iterdir()}
+    capsys.readouterr()
+    assert main(base + ["--set", "zones.control_zone_m=250", "--out", str(out), "--force"]) == 2
+    assert "sumo" in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in elsewhere.iterdir()} == before and (out / "sumo").is_symlink()
