@@ -498,12 +498,14 @@ class Engine:
 
     def _zone_crossing_s(self) -> float:
         """The time a car needs to cross the longest control zone of the run at the speed limit
-        (the fastest movement's lowest limit) [s]; 0 before the paths are known."""
+        (the fastest movement's lowest limit), the zone as it was built (cut where it reached back
+        past where routes start) [s]; 0 before the paths are known."""
         st, out = self.st, 0.0
         if st is None or self.layout is None:
             return out
         for j in self.layout.junctions.values():
-            v = max((st.paths[m].v_limit for m in j.movements if m in st.paths), default=math.inf)
+            paths = [st.paths[m] for m in j.movements if m in st.paths]
+            v = max((p.v_limit for p in paths), default=math.inf)
             if 0 < v < math.inf:
-                out = max(out, j.control_zone_m / v)
+                out = max(out, max(p.s_merge - p.s_control for p in paths) / v)
         return out
