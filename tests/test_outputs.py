@@ -181,7 +181,6 @@ def test_a_window_shorter_than_a_crossing_runs_with_a_warning(tmp_path, capsys):
     assert not any("shorter than" in w for w in json.loads((out2 / "summary.json").read_text())["warnings"])
 
 
-
 def test_the_crossing_a_short_window_is_warned_of_is_of_the_zone_as_cut(tmp_path):
     """A 5000 m control zone on cross4's roads (about 500 m long) is cut to what the roads hold
     (summary.json ``control_zones_cut_m``): the warning of a short window gives the time to cross
@@ -195,6 +194,7 @@ def test_the_crossing_a_short_window_is_warned_of_is_of_the_zone_as_cut(tmp_path
     assert 30 < crossing_s < 40
     short = [w for w in s["warnings"] if "shorter than" in w]
     assert len(short) == 1 and f"the {crossing_s:.0f} s a car needs to cross the control zone" in short[0]
+
 
 def test_replay_allows_a_last_digit_of_rounding_and_no_more():
     """Two runs equal within the replay's tolerance may round a written figure on either side of
