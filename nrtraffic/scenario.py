@@ -332,7 +332,7 @@ class JunctionSpec:
     ``control_zones_cut_m``)."""
 
     id: str = ""  # id of the SUMO junction (required)
-    control_zone_m: float = 0.0  # its control zone [m]; 0: zones.control_zone_m
+    control_zone_m: float = 0.0  # its control zone [m], 20 or more; 0: zones.control_zone_m
     merging_zone_m: float = 0.0  # diameter of its merging zone [m]; 0: zones.merging_zone_m
 
     def validate(self) -> None:
