@@ -168,7 +168,7 @@ def parse_grid(items: list[str]) -> list[tuple[str, list[str]]]:
     for item in items:
         key, sep, values = item.partition("=")
         key = key.strip()
-        vals = [v.strip() for v in values.split(",")]
+        vals = _split_values(item, values)
         if any(c in values for c in "[]{}"):  # (its commas would split a list or a table into pieces)
             raise SweepError(f"--grid {item!r}: a list or table cannot be a grid value on the command line (its "
                              "commas separate the values); sweep over it with the Python API, "
@@ -182,6 +182,26 @@ def parse_grid(items: list[str]) -> list[tuple[str, list[str]]]:
             raise SweepError(f"--grid {key} is given twice")
         grid.append((key, vals))
     return grid
+
+
+def _split_values(item: str, values: str) -> list[str]:
+    """A ``--grid`` item's values, split at the commas outside quotes (``"a,b.rou.xml"`` is one
+    TOML string), each stripped; the quotes are kept (the value is read as TOML)."""
+    vals, cur, quote = [], [], ""
+    for c in values:
+        if quote:
+            quote = "" if c == quote else quote
+        elif c in "\"'":
+            quote = c
+        elif c == ",":
+            vals.append("".join(cur).strip())
+            cur = []
+            continue
+        cur.append(c)
+    if quote:
+        raise SweepError(f"--grid {item!r}: a quote ({quote}) is not closed; close each quoted value, "
+                         'e.g. demand.sumo_routes="a.rou.xml","b.rou.xml"')
+    return vals + ["".join(cur).strip()]
 
 
 def check_grid(grid: list[tuple[str, list[str]]], duration_s: float | None = None) -> None:
@@ -681,8 +701,9 @@ def _removed(scratch: Path, folder: Path | None):
 
 
 def collect(jobs: list[Job], errors: dict[str, str] | None = None, gridlocks=frozenset()) -> pd.DataFrame:
-    """One row per job from its run directory: grid values, seed, control, status, error and the
-    scalar figures of summary.json. ``errors``: why this pass's unfinished runs failed, by run
+    """One row per job from its run directory: grid values, seed, control, status, error, the
+    scalar figures of summary.json, and the run directory (``<run_dir>.failed`` for a run that did
+    not finish and left one). ``errors``: why this pass's unfinished runs failed, by run
     directory; ``gridlocks``: the run directories of those the watchdog stopped."""
     errors = errors or {}
     rows = []
@@ -702,7 +723,8 @@ def collect(jobs: list[Job], errors: dict[str, str] | None = None, gridlocks=fro
                     for name, figs in (s.get(part) or {}).items():
                         row.update({f"{part}:{name}:{k}": v for k, v in figs.items()
                                     if v is None or isinstance(v, (int, float))})
-        row["run_dir"] = str(Path(j.run_dir))
+        # (a run that did not finish: where what it had finished is kept, where it left anything)
+        row["run_dir"] = str(failed_dir(j.run_dir) if s is None and failed_dir(j.run_dir).is_dir() else Path(j.run_dir))
         rows.append(row)
     return pd.DataFrame(rows)
 

@@ -96,6 +96,14 @@ def test_bad_grid_is_refused_before_any_run(tmp_path, capsys):
                  "--out", str(tmp_path / "o")])
     assert code == 2 and "a list or table cannot be a grid value on the command line" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+    # a quoted value keeps its comma: the grid point is the whole string (its file is not there)
+    code = main(["sweep", str(SCENARIOS / "cross4"), "--seeds", "1", "--grid",
+                 'demand.sumo_routes="no,such.rou.xml","other.rou.xml"', "--out", str(tmp_path / "o")])
+    assert code == 2 and 'at the grid point demand.sumo_routes="no,such.rou.xml":' in capsys.readouterr().err
+    code = main(["sweep", str(SCENARIOS / "cross4"), "--seeds", "1", "--grid", 'demand.sumo_routes="a.rou.xml',
+                 "--out", str(tmp_path / "o")])
+    assert code == 2 and "a quote (\") is not closed" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
 
 
 def test_a_sweep_run_replays(study):
@@ -178,7 +186,8 @@ def test_a_run_stopped_as_a_gridlock_is_a_gridlock_row_and_is_not_retried(tmp_pa
     assert df.loc["priority", "status"] == "ok"
     assert df.loc["nrtraffic", "status"] == "gridlock"
     assert "Gridlock: junction C: no vehicle crossed for 30 s" in df.loc["nrtraffic", "error"]
-    failed = Path(df.loc["nrtraffic", "run_dir"] + ".failed")
+    failed = Path(df.loc["nrtraffic", "run_dir"])  # (the row points at what the run left)
+    assert failed == out / "runs" / "base" / "seed3" / "nrtraffic.failed"
     assert json.loads((failed / "summary.json").read_text())["status"] == "gridlock"
     summ = pd.read_csv(out / "sweep_summary.csv").set_index("control")
     assert summ.loc["nrtraffic", "runs"] == 0 and summ.loc["nrtraffic", "failed"] == 1
