@@ -620,6 +620,10 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
                     raise SweepError(f"--scheduler {scheduler}: no Dask scheduler answered within "
                                      f"{SCHEDULER_TIMEOUT_S:g} s: start it (dask scheduler), or check the address and "
                                      "port") from None
+                except MemoryError:  # (a reply that is not Dask's, read as the length of a frame of exabytes)
+                    raise SweepError(f"--scheduler {scheduler}: something answers there, but not as a Dask scheduler "
+                                     "(its reply is not Dask's protocol): check the port (a Dask scheduler listens on "
+                                     "8786 unless told otherwise; 8787 is its dashboard)") from None
                 except Exception as exc:  # noqa: BLE001 - no Dask scheduler took the connection
                     if scheduler.startswith("tls://") and "ssl" in str(exc).lower():
                         raise SweepError(f"--scheduler {scheduler}: tls:// needs Dask's TLS settings (certificates, "

@@ -797,6 +797,7 @@ def test_a_scheduler_address_where_something_else_answers_is_refused_in_one_line
     err = capsys.readouterr().err
     assert code == 2, err
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1 and "--scheduler" in err
+    assert "something answers there, but not as a Dask scheduler" in err and "MemoryError" not in err, err
     assert not (tmp_path / "c").exists()
 
 
