@@ -470,19 +470,24 @@ class Progress:
 
         sweep: 7/40 runs done (1 failed), 3 min 10 s elapsed, about 15 min left; last: base/seed3/nrtraffic ok
 
-    ``total`` runs of which ``initial`` were finished before (a resumed sweep: not counted in the
-    time left); ``enabled`` False: nothing at all."""
+    and, while no run finishes, a line every ``quiet_s`` (60 s)::
 
-    def __init__(self, total: int, initial: int, enabled: bool = True, stream=None):
-        import sys
+        sweep: 0/40 runs done, 1 min 00 s elapsed; runs under way
+
+    (the bar is redrawn each second: its elapsed time moves). ``total`` runs of which ``initial``
+    were finished before (a resumed sweep: not counted in the time left); ``enabled`` False:
+    nothing at all."""
+
+    def __init__(self, total: int, initial: int, enabled: bool = True, stream=None, quiet_s: float = 60.0):
         import time
 
         self.stream = stream or sys.stderr
         self.total, self.n, self.failed, self.gridlocks, self.initial = total, initial, 0, 0, initial
-        self.t0 = time.monotonic()
+        self.t0 = self.t_said = time.monotonic()
         self.lines = enabled and not self.stream.isatty()
         self.every = max(1, total // 50)
         self.bar = None
+        self._lock, self._stop = threading.Lock(), threading.Event()
         if enabled and not self.lines:
             from tqdm import tqdm
 
@@ -490,9 +495,29 @@ class Progress:
         if self.lines:
             self._print(f"sweep: {total - initial} run{'s' if total - initial != 1 else ''} to do"
                         + (f" ({initial} of {total} finished before)" if initial else ""))
+        if enabled and initial < total:
+            threading.Thread(target=self._while_quiet, args=(quiet_s,), daemon=True).start()
+
+    def _while_quiet(self, quiet_s: float) -> None:
+        """Until :meth:`close`: the bar redrawn each second, or a line after ``quiet_s`` without one."""
+        import time
+
+        while not self._stop.wait(1.0 if self.bar is not None else min(quiet_s, 1.0)):
+            with self._lock:
+                if self._stop.is_set():
+                    return
+                if self.bar is not None:
+                    self.bar.refresh()
+                elif time.monotonic() - self.t_said >= quiet_s:
+                    self._print(f"sweep: {self.n}/{self.total} runs done, {_duration(time.monotonic() - self.t0)} "
+                                "elapsed; runs under way")
 
     def done(self, job: Job, failed: bool, gridlock: bool = False) -> None:
         """One more run finished (``failed``: recorded as failed; ``gridlock``: stopped as one)."""
+        with self._lock:
+            self._done(job, failed, gridlock)
+
+    def _done(self, job: Job, failed: bool, gridlock: bool) -> None:
         import time
 
         self.n += 1
@@ -513,10 +538,15 @@ class Progress:
                         + ("gridlock" if gridlock else "failed" if failed else "ok"))
 
     def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
+        self._stop.set()
+        with self._lock:
+            if self.bar is not None:
+                self.bar.close()
 
     def _print(self, text: str) -> None:
+        import time
+
+        self.t_said = time.monotonic()
         print(text, file=self.stream, flush=True)
 
 
@@ -642,6 +672,7 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
                                            dashboard_address=":0", memory_limit=0, local_directory=str(scratch),
                                            silence_logs=logging.CRITICAL)  # (a failed run is a row, not a traceback)
                 client = Client(cluster)
+            report = None
             try:
                 futures = {client.submit(run_job, j.spec(), retries=1, pure=False,
                                          key=f"run-{uuid.uuid4().hex}"): j for j in todo}
@@ -661,8 +692,9 @@ def run_sweep(jobs: list[Job], out: Path, workers: int = 2, scheduler: str | Non
                             errors[job.run_dir] = got["error"]
                             gridlocks.add(job.run_dir)
                     report.done(job, job.run_dir in errors, gridlock=job.run_dir in gridlocks)
-                report.close()
             finally:
+                if report is not None:  # (also when the sweep stops halfway: its lines stop)
+                    report.close()
                 client.close()
                 if cluster is not None:
                     cluster.close()

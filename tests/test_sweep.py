@@ -338,3 +338,30 @@ def test_a_sweep_whose_runs_were_refused_for_their_scenario_does_not_say_retry()
     assert failed_advice(table(["KilledWorker: ..."])) == "1 of 2 runs failed; re-run the same command to retry them"
     mixed = failed_advice(table(["KilledWorker: ...", "ScenarioError: ..."]))
     assert "retry them" in mixed and "1 were refused for their scenario" in mixed
+
+
+def test_a_sweep_says_it_is_under_way_while_no_run_finishes():
+    """Off a terminal a sweep prints a line per finished run; between them, while runs are under
+    way, it says so after each quiet spell (``quiet_s``, 60 s by default), and nothing once closed."""
+    import io
+    import time
+
+    from runners.sweep import Job, Progress
+
+    out = io.StringIO()  # (not a terminal: lines)
+    p = Progress(3, 0, stream=out, quiet_s=0.05)
+    deadline = time.monotonic() + 30.0
+    while "under way" not in out.getvalue() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    job = Job("cross4", (), (), 1, "nrtraffic", None, "/x/runs/base/seed1/nrtraffic")
+    p.done(job, failed=False)
+    while out.getvalue().count("under way") < 2 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    p.close()
+    lines = out.getvalue().splitlines()
+    assert lines[0] == "sweep: 3 runs to do"
+    assert re.fullmatch(r"sweep: 0/3 runs done, \d+ s elapsed; runs under way", lines[1]), lines
+    assert any(line.startswith("sweep: 1/3 runs done (0 failed)") for line in lines)
+    assert re.fullmatch(r"sweep: 1/3 runs done, \d+ s elapsed; runs under way", lines[-1]), lines
+    time.sleep(0.3)
+    assert out.getvalue().splitlines() == lines  # (closed: silent)
