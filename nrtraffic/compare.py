@@ -228,6 +228,26 @@ class Comparison:
         return str(self.runs[0].summary.get("scenario"))
 
 
+def _demand_differs(runs: list[Run]) -> str:
+    """The ``[demand]`` settings in which the runs' ``scenario.resolved.toml`` differ, as
+    ``key: value / value``, "; "-separated ("" where they agree, or a run has no such file)."""
+    import tomllib
+
+    demands = []
+    for r in runs:
+        try:
+            demands.append(tomllib.loads((r.run_dir / "scenario.resolved.toml").read_text()).get("demand") or {})
+        except (OSError, ValueError):
+            return ""
+    keys = sorted(set().union(*demands))
+    out = []
+    for k in keys:
+        vals = [json.dumps(d.get(k), sort_keys=True) for d in demands]
+        if len(set(vals)) > 1:
+            out.append(f"{k}: " + " / ".join(dict.fromkeys(vals)))
+    return "; ".join(out)
+
+
 def compare(run_dirs: list[Path]) -> Comparison:
     """The runs' figures side by side (see the module docstring)."""
     runs = load(run_dirs)
@@ -239,6 +259,10 @@ def compare(run_dirs: list[Path]) -> Comparison:
         vals = {r.summary.get(k) for r in runs}
         if len(vals) > 1 and not any(what in n for n in notes):
             notes.append(f"The runs differ in their {what}: each figure is over its own run's.")
+    differ = _demand_differs(runs)
+    if differ:
+        notes.append(f"The runs differ in their demand ({differ}): their figures answer different traffic; compare "
+                     "runs of one demand.")
     if any(r.summary.get("status") != "ok" for r in runs):
         notes.append("A run whose status is gridlock stopped when a junction made no progress: its figures cover "
                      "the time until then.")

@@ -2,6 +2,7 @@
 ``nrtraffic compare``."""
 
 import json
+import tomllib
 import xml.etree.ElementTree as ET
 
 import numpy as np
@@ -199,6 +200,30 @@ def test_compare_puts_each_runs_own_figures_side_by_side(cross4_pair, capsys):
     assert queues_seen >= 1  # the traffic light made a queue somewhere
     page = (out / "compare.html").read_text()
     assert "<title>cross4: nrtraffic vs sumo_traffic_light</title>" in page
+
+
+def test_compare_notes_runs_of_different_demand(cross4_pair, tmp_path, capsys):
+    """Two runs whose resolved configurations differ in their demand are compared with a note that
+    names the setting and both values; runs of one demand get no such note."""
+    import shutil
+
+    from runners.cli import main
+
+    base = cross4_pair
+    assert main(["compare", str(base / "nr"), str(base / "tl"), "--out", str(tmp_path / "same")]) == 0
+    assert "differ in their demand" not in capsys.readouterr().out
+    other = tmp_path / "tl_800"  # (the traffic light's run, as a run at another rate would record it)
+    shutil.copytree(base / "tl", other)
+    cfg = other / "scenario.resolved.toml"
+    text = cfg.read_text()
+    rate = tomllib.loads(text)["demand"]["rate_veh_h"]
+    head, sep, demand = text.partition("[demand]")
+    assert sep and f"rate_veh_h = {rate!r}" in demand
+    cfg.write_text(head + sep + demand.replace(f"rate_veh_h = {rate!r}", "rate_veh_h = 800.0", 1))
+    assert main(["compare", str(base / "nr"), str(other), "--out", str(tmp_path / "diff")]) == 0
+    said = capsys.readouterr().out
+    assert f"The runs differ in their demand (rate_veh_h: {rate!r} / 800.0)" in said, said
+    assert "differ in their demand" in (tmp_path / "diff" / "compare.html").read_text()
 
 
 def test_compare_refuses_unfinished_runs_and_other_scenarios(cross4_pair, corridor_run, tmp_path, capsys):
