@@ -429,12 +429,18 @@ class Admission:
 
     def start(self) -> None:
         """Controlled vehicles whose reserved start from rest has come: the kernel takes them over
-        (not while their exit is queued: :func:`~nrtraffic.junction.exits.wait_for_room`)."""
+        (not while their exit is queued: :func:`~nrtraffic.junction.exits.wait_for_room`), in
+        their lane's order: a vehicle standing behind one that waits for a later start, or for
+        none, waits for it (:meth:`_after_leader`)."""
         st = self.st
         if not st.life.count(State.STARTING):
             return
-        for vid in st.life.members(State.STARTING):
+        starting = st.life.members(State.STARTING)
+        ahead = self._starting_ahead(starting) if len(starting) > 1 else {}
+        for vid in starting:
             rec = st.records[vid]
+            if vid in ahead and self._after_leader(vid, ahead[vid]):
+                continue
             if exits.wait_for_room(st, vid, self._reserve_start) or st.t < rec.t_release - 1e-9:
                 continue
             got = self.request(vid)
@@ -451,6 +457,41 @@ class Admission:
                 st.sumo.cancel_stop(vid)
             self.admit(got, Assignment(vid, rec.lane, st.t, prof.t_m, prof, rec.predecessor, rec.relation,
                                        rec.binding, rec.movement))
+
+    def _starting_ahead(self, starting: list[str]) -> dict[str, str]:
+        """Of the vehicles waiting for their start from rest, each one's nearest such vehicle ahead
+        on the same entry lane (nearer its merging zone), where there is one."""
+        st = self.st
+        by_lane: dict[tuple[str, str], list[tuple[float, str]]] = {}
+        for vid in starting:
+            if vid not in st.snap.row:
+                continue
+            rec = st.records[vid]
+            s = st.cg_on_path(vid)
+            if s is None:
+                continue
+            by_lane.setdefault((rec.junction, rec.lane), []).append((st.paths[rec.movement].s_merge - s, vid))
+        ahead = {}
+        for cars in by_lane.values():
+            cars.sort()
+            for (_, front), (_, back) in zip(cars, cars[1:]):
+                ahead[back] = front
+        return ahead
+
+    def _after_leader(self, vid: str, leader: str) -> bool:
+        """Whether ``vid`` waits for the vehicle standing ahead of it on its lane (``leader``) to have
+        its start reserved first: where the leader has none (its exit queued) or a later one, ``vid``
+        gives its own up (it could not set off through the car ahead, and would come late into its
+        window) and waits; it is reserved again behind the leader (:func:`exits.wait_for_room`)."""
+        st = self.st
+        rec, lead = st.records[vid], st.records[leader]
+        if not (math.isinf(lead.t_release) or lead.t_release > rec.t_release + 1e-9):
+            return False
+        if not math.isinf(rec.t_release):
+            st.junctions[rec.junction].coord.cancel(vid)
+            rec.t_release = math.inf
+            rec.replans += 1
+        return True
 
 
 def lane_movement(st, vid: str, route: str) -> tuple[str, str, bool]:
