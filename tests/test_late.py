@@ -155,13 +155,13 @@ def test_a_gated_car_that_creeps_up_to_its_stop_does_not_drive_on_late(tmp_path)
     assert res.summary["collisions"] == 0
 
 
-def test_a_late_car_behind_a_car_that_sets_off_stops_at_its_closed_entry(tmp_path):
-    """Andrea Costa at 1.5 times its demand, seed 7 (the study's): ``Vittorio_Veneto_1_13`` is
-    late, stops at its merging-zone entry and gets a new start from rest at 122.3 s. The car behind
-    it, ``Vittorio_Veneto_1_12``, was planned to enter at 121.0 s, passing it; it waits behind it,
-    late in turn. With the car ahead as its barrier's only obstacle it followed it off at the
-    barrier's gap and entered its merging zone 2.7 s late. Its closed entry is a second obstacle:
-    no controlled car enters later than the late guard's allowance."""
+def test_no_controlled_car_enters_late_on_andrea_costa_past_its_demand(tmp_path):
+    """Andrea Costa at 1.5 times its demand, seed 7 (the study's), to 135 s: cars are held up by
+    cars of SUMO's standing in their lanes inside the control zones (turn lanes are added there),
+    stop at their merging-zone entries and are planned again from rest, some of them many times
+    (the late guard, and a late car's closed entry as a second obstacle besides the car ahead:
+    ``test_the_kernel_stops_a_car_at_its_gate_while_its_leader_drives_away``). No controlled car
+    enters its merging zone later than the late guard's allowance; no collision."""
     from conftest import SCENARIOS
 
     sc = scenario.load(SCENARIOS / "bologna_acosta",
@@ -172,8 +172,7 @@ def test_a_late_car_behind_a_car_that_sets_off_stops_at_its_closed_entry(tmp_pat
     late = entered["t_merge_actual_s"] - entered["t_merge_planned_s"]
     tol = sc.coordinator.late_tolerance_s(False)
     assert len(entered) > 80 and (late <= tol + 0.1).all(), entered.loc[late > tol + 0.1, "vehicle_id"].tolist()
-    ahead = v.set_index("vehicle_id").loc["Vittorio_Veneto_1_13"]
-    assert ahead["replans"] == 1 and ahead["profile"] == "from_rest"  # (the case this test is about)
+    assert (v["replans"] > 0).sum() >= 2 and v["replans"].max() >= 3  # (the case this test is about)
     assert res.summary["collisions"] == 0 and res.summary["collisions_geometric"] == 0
 
 
