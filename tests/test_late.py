@@ -155,24 +155,31 @@ def test_a_gated_car_that_creeps_up_to_its_stop_does_not_drive_on_late(tmp_path)
     assert res.summary["collisions"] == 0
 
 
-def test_no_controlled_car_enters_late_on_andrea_costa_past_its_demand(tmp_path):
-    """Andrea Costa at 1.5 times its demand, seed 7 (the study's), to 135 s: cars are held up by
-    cars of SUMO's standing in their lanes inside the control zones (turn lanes are added there),
-    stop at their merging-zone entries and are planned again from rest, some of them many times
-    (the late guard, and a late car's closed entry as a second obstacle besides the car ahead:
+@pytest.mark.parametrize("seed, until", [(7, 135.0), (8, 110.0)])
+def test_no_controlled_car_enters_late_on_andrea_costa_past_its_demand(seed, until, tmp_path):
+    """Andrea Costa at 1.5 times its demand, seeds 7 and 8 (the study's), to ``until``: cars are
+    held up by cars of SUMO's standing in their lanes inside the control zones (turn lanes are added
+    there), stop at their merging-zone entries and are planned again from rest (the late guard, and
+    a late car's closed entry as a second obstacle besides the car ahead:
     ``test_the_kernel_stops_a_car_at_its_gate_while_its_leader_drives_away``). No controlled car
-    enters its merging zone later than the late guard's allowance; no collision."""
+    enters its merging zone later than the late guard's allowance; no collision.
+
+    A start from rest waits while a car of SUMO's stands ahead of it: in seed 8 one set off with
+    such a car 2.5 m ahead of its front bumper and entered 1.18 s late (``Vittorio_Veneto_1_10#1``
+    at 106.9 s); in seed 7 ``Vittorio_Veneto_1_13`` set off into one, came late and stood, over and
+    over, planned again 10 times in 7 s. No car is planned again more than 3 times here."""
     from conftest import SCENARIOS
 
     sc = scenario.load(SCENARIOS / "bologna_acosta",
-                       ["demand.scale=1.5", "demand.depart_offset_s=30", "scenario.duration_s=135.0"])
-    res = run_scenario(sc, tmp_path / "run", seed=7)
+                       ["demand.scale=1.5", "demand.depart_offset_s=30", f"scenario.duration_s={until}"])
+    res = run_scenario(sc, tmp_path / "run", seed=seed)
     v = res.vehicles
     entered = v[v["t_merge_actual_s"].notna() & v["t_merge_planned_s"].notna()]
     late = entered["t_merge_actual_s"] - entered["t_merge_planned_s"]
     tol = sc.coordinator.late_tolerance_s(False)
-    assert len(entered) > 80 and (late <= tol + 0.1).all(), entered.loc[late > tol + 0.1, "vehicle_id"].tolist()
-    assert (v["replans"] > 0).sum() >= 2 and v["replans"].max() >= 3  # (the case this test is about)
+    assert len(entered) > 60 and (late <= tol + 0.1).all(), entered.loc[late > tol + 0.1, "vehicle_id"].tolist()
+    assert (v["replans"] > 0).sum() >= 2  # (the case this test is about)
+    assert v["replans"].max() <= 3, v.loc[v["replans"] > 3, ["vehicle_id", "replans"]]
     assert res.summary["collisions"] == 0 and res.summary["collisions_geometric"] == 0
 
 
