@@ -470,15 +470,9 @@ class Admission:
         would drive up to it and come late into its window. It gives its start up (as for a queued
         exit, :func:`exits.wait_for_room`) and waits; its start is reserved again once no such
         vehicle stands there (True)."""
-        st = self.st
-        rec = st.records[vid]
-        blocker = _standing_ahead(st, vid)
-        if blocker is None:
+        if _standing_ahead(self.st, vid) is None:
             return False
-        if not math.isinf(rec.t_release):
-            st.junctions[rec.junction].coord.cancel(vid)
-            rec.t_release = math.inf
-            rec.replans += 1
+        exits.give_up_start(self.st, vid)
         return True
 
     def _starting_ahead(self, starting: list[str]) -> dict[str, str]:
@@ -510,10 +504,7 @@ class Admission:
         rec, lead = st.records[vid], st.records[leader]
         if not (math.isinf(lead.t_release) or lead.t_release > rec.t_release + 1e-9):
             return False
-        if not math.isinf(rec.t_release):
-            st.junctions[rec.junction].coord.cancel(vid)
-            rec.t_release = math.inf
-            rec.replans += 1
+        exits.give_up_start(st, vid)
         return True
 
 

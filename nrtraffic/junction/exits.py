@@ -93,8 +93,16 @@ def wait_for_room(st, vid: str, reserve_start) -> bool:
             reserve_start(vid)
         return True
     if st.t >= rec.t_release - 1e-9 and vid in st.snap.row and blocked(st, vid) is not None:
+        give_up_start(st, vid)
+        return True
+    return False
+
+
+def give_up_start(st, vid: str) -> None:
+    """A controlled vehicle standing for its start from rest gives its reserved start up (its
+    reservation is cancelled; ``t_release`` inf: it waits for a new one) where it has one."""
+    rec = st.records[vid]
+    if not math.isinf(rec.t_release):
         st.junctions[rec.junction].coord.cancel(vid)
         rec.t_release = math.inf
         rec.replans += 1
-        return True
-    return False
