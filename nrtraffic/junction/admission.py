@@ -24,12 +24,11 @@ import numpy as np
 
 from nrtraffic.control import batch as kb
 from nrtraffic.control.table import N_PROFILE_SEG
-from nrtraffic.junction import exits, humans
+from nrtraffic.junction import exits, humans, order
 from nrtraffic.lifecycle import State, VehicleRecord
 from nrtraffic.planning.coordinator import Assignment, Request, ScheduleInfeasible
 from nrtraffic.planning.crossing import CrossingBounds
 from nrtraffic.planning.profiles import from_rest
-from nrtraffic.sumo.network import edge_of
 from nrtraffic.vehicle.fuel import fuel_rate
 
 # slack of a reserved start from rest of a controlled vehicle (its tracking error, in time) [s]
@@ -431,18 +430,18 @@ class Admission:
     def start(self) -> None:
         """Controlled vehicles whose reserved start from rest has come: the kernel takes them over
         (not while their exit is queued: :func:`~nrtraffic.junction.exits.wait_for_room`), in
-        their lane's order: a vehicle standing behind one that waits for a later start, or for
-        none, waits for it (:meth:`_after_leader`)."""
+        their lane's order, and not while a vehicle with no crossing arranged stands in their way
+        (:mod:`nrtraffic.junction.order`)."""
         st = self.st
         if not st.life.count(State.STARTING):
             return
         starting = st.life.members(State.STARTING)
-        ahead = self._starting_ahead(starting) if len(starting) > 1 else {}
+        ahead = order.starting_ahead(st, starting) if len(starting) > 1 else {}
         for vid in starting:
             rec = st.records[vid]
-            if vid in ahead and self._after_leader(vid, ahead[vid]):
+            if vid in ahead and order.after_leader(st, vid, ahead[vid]):
                 continue
-            if (math.isinf(rec.t_release) or st.t >= rec.t_release - 1e-9) and self._way_held(vid):
+            if (math.isinf(rec.t_release) or st.t >= rec.t_release - 1e-9) and order.way_held(st, vid):
                 continue
             if exits.wait_for_room(st, vid, self._reserve_start) or st.t < rec.t_release - 1e-9:
                 continue
@@ -460,85 +459,6 @@ class Admission:
                 st.sumo.cancel_stop(vid)
             self.admit(got, Assignment(vid, rec.lane, st.t, prof.t_m, prof, rec.predecessor, rec.relation,
                                        rec.binding, rec.movement))
-
-    def _way_held(self, vid: str) -> bool:
-        """Whether ``vid``, whose reserved start from rest has come (or which waits for one), stands
-        behind a vehicle with no crossing of its own arranged: one standing on ``vid``'s path ahead
-        of it, its rear short of ``vid``'s merging-zone exit, that is neither under control, nor
-        waiting for its own start, nor a human driver with a reserved crossing (a car of SUMO's that
-        stands on a lane that does not serve its turn, on a flared approach). Setting off, ``vid``
-        would drive up to it and come late into its window. It gives its start up (as for a queued
-        exit, :func:`exits.wait_for_room`) and waits; its start is reserved again once no such
-        vehicle stands there (True)."""
-        if _standing_ahead(self.st, vid) is None:
-            return False
-        exits.give_up_start(self.st, vid)
-        return True
-
-    def _starting_ahead(self, starting: list[str]) -> dict[str, str]:
-        """Of the vehicles waiting for their start from rest, each one's nearest such vehicle ahead
-        on the same entry lane (nearer its merging zone), where there is one."""
-        st = self.st
-        by_lane: dict[tuple[str, str], list[tuple[float, str]]] = {}
-        for vid in starting:
-            if vid not in st.snap.row:
-                continue
-            rec = st.records[vid]
-            s = st.cg_on_path(vid)
-            if s is None:
-                continue
-            by_lane.setdefault((rec.junction, rec.lane), []).append((st.paths[rec.movement].s_merge - s, vid))
-        ahead = {}
-        for cars in by_lane.values():
-            cars.sort()
-            for (_, front), (_, back) in zip(cars, cars[1:]):
-                ahead[back] = front
-        return ahead
-
-    def _after_leader(self, vid: str, leader: str) -> bool:
-        """Whether ``vid`` waits for the vehicle standing ahead of it on its lane (``leader``) to have
-        its start reserved first: where the leader has none (its exit queued) or a later one, ``vid``
-        gives its own up (it could not set off through the car ahead, and would come late into its
-        window) and waits; it is reserved again behind the leader (:func:`exits.wait_for_room`)."""
-        st = self.st
-        rec, lead = st.records[vid], st.records[leader]
-        if not (math.isinf(lead.t_release) or lead.t_release > rec.t_release + 1e-9):
-            return False
-        exits.give_up_start(st, vid)
-        return True
-
-
-# a vehicle in one of these states has its crossing arranged (or its start, in its lane's order):
-# standing ahead of a start from rest, it does not hold it (:meth:`Admission._way_held`)
-_ARRANGED = frozenset({State.STARTING, State.CONTROLLED, State.RESERVED, State.CROSSING})
-STANDING_MPS = 0.1  # slower than this a vehicle stands [m/s]
-
-
-def _standing_ahead(st, vid: str) -> str | None:
-    """The first vehicle found standing on ``vid``'s movement's lanes ahead of it (by SUMO's view
-    now), whose rear is short of the merging zone's exit and whose crossing is not arranged
-    (:data:`_ARRANGED`), or None."""
-    snap = st.snap
-    if vid not in snap.row:
-        return None
-    s_self = st.cg_on_path(vid)
-    if s_self is None:
-        return None
-    mv = st.paths[st.records[vid].movement]
-    front = s_self + st.params.cg_to_front
-    rows = snap.rows_by_edge
-    for lane in mv.lanes:
-        off, scale = mv.lane_offset[lane]
-        for k in rows.get(edge_of(lane), ()):
-            if snap.lane[k] != lane or snap.speed[k] >= STANDING_MPS:
-                continue
-            other = snap.ids[k]
-            s_front = off + float(snap.lane_pos[k]) * scale
-            if other == vid or s_front <= front or s_front - st.params.length >= mv.s_exit:
-                continue
-            if st.life.state(other) not in _ARRANGED:
-                return other
-    return None
 
 
 def lane_movement(st, vid: str, route: str) -> tuple[str, str, bool]:
