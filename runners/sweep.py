@@ -168,8 +168,8 @@ def parse_grid(items: list[str]) -> list[tuple[str, list[str]]]:
     for item in items:
         key, sep, values = item.partition("=")
         key = key.strip()
-        vals = _split_values(item, values)
-        if any(c in values for c in "[]{}"):  # (its commas would split a list or a table into pieces)
+        vals, outside = _split_values(item, values)
+        if any(c in outside for c in "[]{}"):  # (its commas would split a list or a table into pieces)
             raise SweepError(f"--grid {item!r}: a list or table cannot be a grid value on the command line (its "
                              "commas separate the values); sweep over it with the Python API, "
                              "nrtraffic.sweep(..., grid={'" + key + "': [[...], [...]]}), or one sweep per value")
@@ -184,10 +184,11 @@ def parse_grid(items: list[str]) -> list[tuple[str, list[str]]]:
     return grid
 
 
-def _split_values(item: str, values: str) -> list[str]:
+def _split_values(item: str, values: str) -> tuple[list[str], str]:
     """A ``--grid`` item's values, split at the commas outside quotes (``"a,b.rou.xml"`` is one
-    TOML string), each stripped; the quotes are kept (the value is read as TOML)."""
-    vals, cur, quote = [], [], ""
+    TOML string), each stripped, the quotes kept (the value is read as TOML); and the text outside
+    quotes (a quoted file name may hold brackets)."""
+    vals, cur, outside, quote = [], [], [], ""
     for c in values:
         if quote:
             quote = "" if c == quote else quote
@@ -197,11 +198,13 @@ def _split_values(item: str, values: str) -> list[str]:
             vals.append("".join(cur).strip())
             cur = []
             continue
+        else:
+            outside.append(c)
         cur.append(c)
     if quote:
         raise SweepError(f"--grid {item!r}: a quote ({quote}) is not closed; close each quoted value, "
                          'e.g. demand.sumo_routes="a.rou.xml","b.rou.xml"')
-    return vals + ["".join(cur).strip()]
+    return vals + ["".join(cur).strip()], "".join(outside)
 
 
 def check_grid(grid: list[tuple[str, list[str]]], duration_s: float | None = None) -> None:

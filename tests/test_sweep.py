@@ -100,6 +100,10 @@ def test_bad_grid_is_refused_before_any_run(tmp_path, capsys):
     code = main(["sweep", str(SCENARIOS / "cross4"), "--seeds", "1", "--grid",
                  'demand.sumo_routes="no,such.rou.xml","other.rou.xml"', "--out", str(tmp_path / "o")])
     assert code == 2 and 'at the grid point demand.sumo_routes="no,such.rou.xml":' in capsys.readouterr().err
+    # ... and its brackets: a file name, not a list
+    code = main(["sweep", str(SCENARIOS / "cross4"), "--seeds", "1", "--grid",
+                 'demand.sumo_routes="no[1].rou.xml","other.rou.xml"', "--out", str(tmp_path / "o")])
+    assert code == 2 and 'at the grid point demand.sumo_routes="no[1].rou.xml":' in capsys.readouterr().err
     code = main(["sweep", str(SCENARIOS / "cross4"), "--seeds", "1", "--grid", 'demand.sumo_routes="a.rou.xml',
                  "--out", str(tmp_path / "o")])
     assert code == 2 and "a quote (\") is not closed" in capsys.readouterr().err
