@@ -24,13 +24,13 @@ from __future__ import annotations
 import math
 
 from nrtraffic.junction import exits
+from nrtraffic.junction.late import STANDING_MPS
 from nrtraffic.lifecycle import State
 from nrtraffic.sumo.network import edge_of
 
 # a vehicle in one of these states has its crossing arranged (or its start, in its lane's order):
 # standing ahead of a start from rest, it does not hold it (:func:`way_held`)
 ARRANGED = frozenset({State.STARTING, State.CONTROLLED, State.RESERVED, State.CROSSING})
-STANDING_MPS = 0.1  # slower than this a vehicle stands [m/s]
 
 
 def starting_ahead(st, starting: list[str]) -> dict[str, str]:
@@ -38,12 +38,10 @@ def starting_ahead(st, starting: list[str]) -> dict[str, str]:
     vehicle ahead on the same entry lane (nearer its merging zone), where there is one."""
     by_lane: dict[tuple[str, str], list[tuple[float, str]]] = {}
     for vid in starting:
-        if vid not in st.snap.row:
+        s = st.where_on_path(vid)
+        if s == -math.inf:
             continue
         rec = st.records[vid]
-        s = st.cg_on_path(vid)
-        if s is None:
-            continue
         by_lane.setdefault((rec.junction, rec.lane), []).append((st.paths[rec.movement].s_merge - s, vid))
     ahead = {}
     for cars in by_lane.values():
@@ -79,10 +77,8 @@ def standing_ahead(st, vid: str) -> str | None:
     now), whose rear is short of the merging zone's exit and whose crossing is not arranged
     (:data:`ARRANGED`), or None."""
     snap = st.snap
-    if vid not in snap.row:
-        return None
-    s_self = st.cg_on_path(vid)
-    if s_self is None:
+    s_self = st.where_on_path(vid)
+    if s_self == -math.inf:
         return None
     mv = st.paths[st.records[vid].movement]
     front = s_self + st.params.cg_to_front
