@@ -37,6 +37,7 @@ import shutil
 import socket
 import sys
 import threading
+import time
 import uuid
 from collections import Counter
 from dataclasses import dataclass
@@ -482,8 +483,6 @@ class Progress:
     nothing at all."""
 
     def __init__(self, total: int, initial: int, enabled: bool = True, stream=None, quiet_s: float = 60.0):
-        import time
-
         self.stream = stream or sys.stderr
         self.total, self.n, self.failed, self.gridlocks, self.initial = total, initial, 0, 0, initial
         self.t0 = self.t_said = time.monotonic()
@@ -503,8 +502,6 @@ class Progress:
 
     def _while_quiet(self, quiet_s: float) -> None:
         """Until :meth:`close`: the bar redrawn each second, or a line after ``quiet_s`` without one."""
-        import time
-
         while not self._stop.wait(1.0 if self.bar is not None else min(quiet_s, 1.0)):
             with self._lock:
                 if self._stop.is_set():
@@ -521,8 +518,6 @@ class Progress:
             self._done(job, failed, gridlock)
 
     def _done(self, job: Job, failed: bool, gridlock: bool) -> None:
-        import time
-
         self.n += 1
         self.failed += bool(failed)
         self.gridlocks += bool(gridlock)
@@ -547,8 +542,6 @@ class Progress:
                 self.bar.close()
 
     def _print(self, text: str) -> None:
-        import time
-
         self.t_said = time.monotonic()
         print(text, file=self.stream, flush=True)
 
@@ -763,7 +756,8 @@ def collect(jobs: list[Job], errors: dict[str, str] | None = None, gridlocks=fro
                         row.update({f"{part}:{name}:{k}": v for k, v in figs.items()
                                     if v is None or isinstance(v, (int, float))})
         # (a run that did not finish: where what it had finished is kept, where it left anything)
-        row["run_dir"] = str(failed_dir(j.run_dir) if s is None and failed_dir(j.run_dir).is_dir() else Path(j.run_dir))
+        failed = failed_dir(j.run_dir)
+        row["run_dir"] = str(failed if s is None and failed.is_dir() else Path(j.run_dir))
         rows.append(row)
     return pd.DataFrame(rows)
 
