@@ -234,7 +234,7 @@ def test_no_car_sets_off_from_rest_through_a_car_standing_ahead_of_it(tmp_path, 
     reserved again behind its lane's last reservation, over and over, until the lane all but
     stopped (136 such starts in this run; in 4 of the study's 10 runs the junction upstream then
     gridlocked). Whenever a car's start from rest comes, no car waiting for its own start stands
-    ahead of it on its entry lane."""
+    ahead of it on the same lane, by SUMO's own positions on that lane."""
     from conftest import SCENARIOS
 
     from nrtraffic.junction.admission import Admission
@@ -248,19 +248,15 @@ def test_no_car_sets_off_from_rest_through_a_car_standing_ahead_of_it(tmp_path, 
         before = set(st.life.members(State.STARTING))
         start(self)
         after = set(st.life.members(State.STARTING))
+        snap = st.snap
         for vid in before - after:
             if st.life.state(vid) != State.CONTROLLED:
                 continue
-            rec = st.records[vid]
-            mv = st.paths[rec.movement]
             seen.append(vid)
-            d_self = mv.s_merge - st.cg_on_path(vid)
+            k = snap.row[vid]  # (SUMO's lane and position along it, before this step's move)
             for other in after:
-                o = st.records[other]
-                if (o.junction, o.lane) != (rec.junction, rec.lane) or other not in st.snap.row:
-                    continue
-                s = st.cg_on_path(other)
-                if s is not None and st.paths[o.movement].s_merge - s < d_self:
+                j = snap.row.get(other)
+                if j is not None and snap.lane[j] == snap.lane[k] and snap.lane_pos[j] > snap.lane_pos[k]:
                     through.append((round(st.t, 1), vid, other))
 
     monkeypatch.setattr(Admission, "start", checked)
