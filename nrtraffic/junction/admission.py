@@ -427,6 +427,12 @@ class Admission:
         humans.reserve(st, vid, CrossingBounds(a, a, v_c, v_c, FROM_REST_SLACK_S))
         rec.profile_kind = "from_rest"
 
+    def _reserve_unless_held(self, vid: str) -> None:
+        """Reserve the start of a vehicle that waited for one, unless a vehicle with no crossing
+        arranged stands in its way (:func:`~nrtraffic.junction.order.standing_ahead`)."""
+        if order.standing_ahead(self.st, vid) is None:
+            self._reserve_start(vid)
+
     def start(self) -> None:
         """Controlled vehicles whose reserved start from rest has come: the kernel takes them over
         (not while their exit is queued: :func:`~nrtraffic.junction.exits.wait_for_room`), in
@@ -441,9 +447,9 @@ class Admission:
             rec = st.records[vid]
             if vid in ahead and order.after_leader(st, vid, ahead[vid]):
                 continue
-            if (math.isinf(rec.t_release) or st.t >= rec.t_release - 1e-9) and order.way_held(st, vid):
+            if st.t >= rec.t_release - 1e-9 and order.way_held(st, vid):  # (one that waits: when its exit clears)
                 continue
-            if exits.wait_for_room(st, vid, self._reserve_start) or st.t < rec.t_release - 1e-9:
+            if exits.wait_for_room(st, vid, self._reserve_unless_held) or st.t < rec.t_release - 1e-9:
                 continue
             got = self.request(vid)
             if got is None:  # no longer seen on its path (not expected)

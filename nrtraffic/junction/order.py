@@ -63,9 +63,10 @@ def after_leader(st, vid: str, leader: str) -> bool:
 
 
 def way_held(st, vid: str) -> bool:
-    """Whether ``vid``, whose reserved start from rest has come (or which waits for one), stands
-    behind a vehicle with no crossing arranged (:func:`standing_ahead`): it gives its start up and
-    waits (True)."""
+    """Whether ``vid``, whose reserved start from rest has come, stands behind a vehicle with no
+    crossing arranged (:func:`standing_ahead`): it gives its start up and waits (True). One that
+    waits has its start reserved again only once none stands there
+    (:meth:`~nrtraffic.junction.admission.Admission.start`)."""
     if standing_ahead(st, vid) is None:
         return False
     exits.give_up_start(st, vid)
